@@ -1,0 +1,188 @@
+"""``run(session, from_stage, to_stage)``: execute stale stages in order, skip fresh ones."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from pipeline import __version__
+from pipeline.artifacts import ArtifactStore, FileHashCache, Manifest, config_hash
+from pipeline.runner.registry import STAGE_ORDER, get_specs
+from pipeline.runner.spec import NullProgress, StageContext, StageSpec
+from pipeline.schema.annotations import annotations_for, annotations_hash, load_annotations
+from pipeline.schema.session import SessionConfig
+
+log = logging.getLogger(__name__)
+
+StageStatus = Literal["fresh", "stale", "missing"]
+
+
+@dataclass(frozen=True)
+class StageReport:
+    stage: str
+    action: Literal["ran", "skipped"]
+    duration_s: float
+    metrics: dict[str, Any]
+
+
+def enabled_stages(session: SessionConfig) -> list[str]:
+    specs = get_specs()
+    wanted = session.stages or tuple(specs)
+    unknown = [s for s in wanted if s not in STAGE_ORDER]
+    if unknown:
+        raise ValueError(f"session.json: unknown stages {unknown}; known: {list(STAGE_ORDER)}")
+    unavailable = [s for s in wanted if s not in specs]
+    if unavailable and session.stages:
+        raise ValueError(f"session.json: stages {unavailable} are not available in this build")
+    return [s for s in STAGE_ORDER if s in wanted and s in specs]
+
+
+def resolve_config(spec: StageSpec, session: SessionConfig) -> Any:
+    """Build the stage config from defaults + session.json overrides (errors name the key)."""
+    overrides = session.stage_config.get(spec.name, {})
+    known = {f.name for f in dataclasses.fields(spec.config_cls)}
+    extra = set(overrides) - known
+    if extra:
+        raise ValueError(f"session.json: stage_config.{spec.name} has unknown keys {sorted(extra)}; known: {sorted(known)}")
+    try:
+        return spec.config_cls(**overrides)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"session.json: stage_config.{spec.name}: {e}") from e
+
+
+def _config_dict(cfg: Any) -> dict[str, Any]:
+    return dataclasses.asdict(cfg)
+
+
+def _deps_in_use(spec: StageSpec, enabled: list[str]) -> list[str]:
+    return list(spec.deps) + [d for d in spec.optional_deps if d in enabled]
+
+
+def fingerprint(ctx: StageContext, spec: StageSpec, cfg: Any, enabled: list[str], hashes: FileHashCache) -> dict[str, str]:
+    """Input hashes of a stage: upstream outputs, input files, consumed annotations."""
+    inputs: dict[str, str] = {}
+    for dep in _deps_in_use(spec, enabled):
+        m = ctx.store.manifest(dep)
+        inputs[f"artifact:{dep}"] = m.outputs_hash if m else "missing"
+    for p in spec.input_files(ctx):
+        try:
+            rel = str(p.relative_to(ctx.session_dir))
+        except ValueError:
+            rel = str(p)
+        inputs[f"file:{rel}"] = hashes.sha256(p)
+    if spec.consumes_annotations:
+        inputs["annotations"] = annotations_hash(annotations_for(ctx.all_annotations, spec.name))
+    return inputs
+
+
+def _code_version(spec: StageSpec) -> str:
+    return f"cornerman {__version__} / {spec.name} v{spec.version}"
+
+
+def stage_status(session_dir: Path) -> dict[str, StageStatus]:
+    """Per enabled stage: fresh, stale or missing (no side effects beyond the hash cache)."""
+    session_dir = Path(session_dir)
+    session = SessionConfig.load(session_dir)
+    store = ArtifactStore(session_dir)
+    specs = get_specs()
+    enabled = enabled_stages(session)
+    hashes = FileHashCache(store.root / ".hashcache.json")
+    out: dict[str, StageStatus] = {}
+    upstream_stale: set[str] = set()
+    for name in enabled:
+        spec = specs[name]
+        m = store.manifest(name)
+        if m is None:
+            out[name] = "missing"
+            continue
+        ctx = StageContext(session_dir, session, store, name)
+        cfg = resolve_config(spec, session)
+        fp = fingerprint(ctx, spec, cfg, enabled, hashes)
+        deps_bad = any(d in upstream_stale or out.get(d) in ("missing", "stale") for d in _deps_in_use(spec, enabled))
+        same = fp == m.inputs and config_hash(_config_dict(cfg)) == m.config_hash and m.code_version == _code_version(spec)
+        out[name] = "fresh" if same and not deps_bad else "stale"
+        if out[name] != "fresh":
+            upstream_stale.add(name)
+    hashes.save()
+    return out
+
+
+def first_stale_stage(session_dir: Path) -> str | None:
+    for name, st in stage_status(session_dir).items():
+        if st != "fresh":
+            return name
+    return None
+
+
+def run(
+    session_dir: str | Path,
+    from_stage: str | None = None,
+    to_stage: str | None = None,
+    force: bool = False,
+    progress: Any = None,
+) -> list[StageReport]:
+    """Run the session's stages in order up to ``to_stage``.
+
+    A stage runs when it is missing or stale, when ``force`` is set, or when it is
+    at or after ``from_stage``; otherwise it is skipped. Each stage's outputs are
+    written atomically, so an exception (or a kill) mid-stage leaves all earlier
+    artifacts intact and a later ``run`` resumes from the first incomplete stage.
+    """
+    session_dir = Path(session_dir)
+    session = SessionConfig.load(session_dir)
+    store = ArtifactStore(session_dir)
+    specs = get_specs()
+    enabled = enabled_stages(session)
+    sink = progress or NullProgress()
+    for s, label in ((from_stage, "from_stage"), (to_stage, "to_stage")):
+        if s is not None and s not in enabled:
+            raise ValueError(f"{label}={s!r} is not an enabled stage of this session: {enabled}")
+    load_annotations(session_dir / "annotations.json")  # fail early on a malformed overlay
+    last = enabled.index(to_stage) if to_stage else len(enabled) - 1
+    first_forced = enabled.index(from_stage) if from_stage else len(enabled)
+    hashes = FileHashCache(store.root / ".hashcache.json")
+    reports: list[StageReport] = []
+    for i, name in enumerate(enabled[: last + 1]):
+        spec = specs[name]
+        ctx = StageContext(session_dir, session, store, name, progress_sink=sink)
+        cfg = resolve_config(spec, session)
+        chash = config_hash(_config_dict(cfg))
+        fp = fingerprint(ctx, spec, cfg, enabled, hashes)
+        m = store.manifest(name)
+        fresh = (
+            m is not None
+            and m.inputs == fp
+            and m.config_hash == chash
+            and m.code_version == _code_version(spec)
+        )
+        if fresh and not force and i < first_forced:
+            sink.stage_finished(name, "skipped", 0.0, m.metrics if m else {})
+            reports.append(StageReport(name, "skipped", 0.0, m.metrics if m else {}))
+            continue
+        missing = [d for d in _deps_in_use(spec, enabled) if store.manifest(d) is None]
+        if missing:
+            raise ValueError(f"stage {name!r} needs {missing}, which have no artifacts")
+        log.info("running stage %s", name)
+        sink.stage_started(name, None)
+        t0 = time.perf_counter()
+        outputs = spec.execute(ctx, cfg)
+        dt = time.perf_counter() - t0
+        manifest = Manifest(
+            stage=name,
+            code_version=_code_version(spec),
+            config=_config_dict(cfg),
+            config_hash=chash,
+            inputs=fp,
+            duration_s=dt,
+            metrics=dict(ctx.metrics),
+        )
+        store.write(manifest, outputs)
+        hashes.save()
+        sink.stage_finished(name, "ran", dt, dict(ctx.metrics))
+        reports.append(StageReport(name, "ran", dt, dict(ctx.metrics)))
+    hashes.save()
+    return reports

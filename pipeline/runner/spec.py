@@ -1,0 +1,117 @@
+"""What the runner needs to know about a stage, and what a stage step gets to see.
+
+A *step* (``pipeline/runner/steps/<stage>.py``) is the I/O adapter around a pure
+stage function: it loads inputs through the ``StageContext``, calls
+``pipeline.stages.<stage>.run(...)`` and returns the outputs to store. The runner
+does all file I/O, hashing and manifest bookkeeping.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any, Protocol
+
+from pipeline.artifacts import ArtifactStore
+from pipeline.schema.annotations import Annotation, annotations_for, load_annotations
+from pipeline.schema.camera import CameraRig
+from pipeline.schema.session import SessionConfig
+
+
+class ProgressSink(Protocol):
+    """Receives progress events; the CLI shows bars, the worker writes the database.
+
+    ``stage_progress`` may raise (e.g. ``JobCancelled``) to stop a stage early; the
+    stage's previous artifacts stay as they were.
+    """
+
+    def stage_started(self, stage: str, total: float | None) -> None: ...
+
+    def stage_progress(self, stage: str, done: float, total: float | None, message: str) -> None: ...
+
+    def stage_finished(self, stage: str, status: str, duration_s: float, metrics: dict[str, Any]) -> None: ...
+
+
+class NullProgress:
+    def stage_started(self, stage: str, total: float | None) -> None:
+        pass
+
+    def stage_progress(self, stage: str, done: float, total: float | None, message: str) -> None:
+        pass
+
+    def stage_finished(self, stage: str, status: str, duration_s: float, metrics: dict[str, Any]) -> None:
+        pass
+
+
+@dataclass
+class StageContext:
+    """Everything a step may read. Steps never glob or guess paths."""
+
+    session_dir: Path
+    session: SessionConfig
+    store: ArtifactStore
+    stage: str
+    progress_sink: Any = field(default_factory=NullProgress)
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+    def resolve(self, rel: str) -> Path:
+        """Resolve a path from session.json (relative to the session folder)."""
+        p = Path(rel)
+        return p if p.is_absolute() else self.session_dir / p
+
+    @cached_property
+    def rig(self) -> CameraRig:
+        """The session's calibration (fps overridden by session.fps when set)."""
+        from pipeline.io.calibration import load_calibration
+
+        rig = load_calibration(self.resolve(self.session.calibration))
+        if self.session.fps > 0 and self.session.fps != rig.fps:
+            rig = dataclasses.replace(rig, fps=float(self.session.fps))
+        return rig
+
+    @cached_property
+    def all_annotations(self) -> list[Annotation]:
+        return load_annotations(self.session_dir / "annotations.json")
+
+    @property
+    def annotations(self) -> list[Annotation]:
+        """The active edits consumed by this stage."""
+        return annotations_for(self.all_annotations, self.stage)
+
+    def progress(self, done: float, total: float | None = None, message: str = "") -> None:
+        self.progress_sink.stage_progress(self.stage, done, total, message)
+
+    def load(self, stage: str, name: str, cls: type) -> Any:
+        return self.store.load(stage, name, cls)
+
+    def has(self, stage: str, name: str) -> bool:
+        return self.store.has(stage, name)
+
+
+@dataclass(frozen=True)
+class StageSpec:
+    """Registration of one stage.
+
+    Fields:
+        name: stage name (also the artifact folder name).
+        deps: upstream stages whose artifacts this stage reads (run first).
+        config_cls: the stage's frozen Config dataclass (defaults in one place).
+        execute: ``(ctx, cfg) -> {output_name: object}`` (see ``ArtifactStore.write``).
+        input_files: ``ctx -> [paths]`` of session inputs hashed into the manifest.
+        optional_deps: upstream stages used when enabled and present.
+        version: bump when the stage's code changes its output.
+        consumes_annotations: whether annotation edits are part of its inputs.
+    """
+
+    name: str
+    deps: tuple[str, ...]
+    config_cls: type
+    execute: Callable[[StageContext, Any], dict[str, Any]]
+    input_files: Callable[[StageContext], list[Path]] = lambda ctx: []
+    optional_deps: tuple[str, ...] = ()
+    version: str = "1"
+    consumes_annotations: bool = False
+    description: str = ""

@@ -1,0 +1,83 @@
+"""detect2d step: 2D person detections + keypoints from the session's source.
+
+- ``source="tracks"``: the Tracks2D npz is loaded (its track ids are kept for the
+  ``track`` stage as ``source_track_id``).
+- ``source="keypoints"``: OpenPose / COCO JSON keypoints are imported.
+- ``source="video"``: the ONNX detector + top-down keypoint model run on the videos.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.runner.spec import StageContext, StageSpec
+from pipeline.schema.base import load_npz
+from pipeline.schema.detections import Tracks2D
+
+
+@dataclass(frozen=True)
+class Detect2DStepConfig:
+    """Config of the 2D stage as seen by the runner (the video models' config lives in
+    ``pipeline.stages.detect2d`` once videos are used)."""
+
+    min_keypoint_conf: float = 0.0
+    """Keypoints below this confidence are marked invalid on import."""
+
+
+def _input_files(ctx: StageContext) -> list[Path]:
+    s = ctx.session
+    files = [ctx.resolve(s.calibration)]
+    if s.source == "tracks":
+        files.append(ctx.resolve(s.tracks))
+    elif s.source == "keypoints":
+        files += [ctx.resolve(p) for p in s.keypoints.values()]
+    else:
+        files += [ctx.resolve(p) for p in s.videos.values()]
+    return files
+
+
+def _execute(ctx: StageContext, cfg: Detect2DStepConfig) -> dict[str, Any]:
+    s = ctx.session
+    if s.source == "tracks":
+        tracks = load_npz(ctx.resolve(s.tracks), Tracks2D)
+        if tracks.n_views != ctx.rig.n_views:
+            raise ValueError(
+                f"{ctx.resolve(s.tracks)}: tracks have {tracks.n_views} views but the calibration has {ctx.rig.n_views}"
+            )
+        dets = tracks.detections()
+        out: dict[str, Any] = {"detections": dets, "source_tracks": {"track_id": tracks.track_id}}
+    elif s.source == "keypoints":
+        from pipeline.io.keypoints2d import load_keypoints
+
+        dets = load_keypoints({k: ctx.resolve(v) for k, v in s.keypoints.items()}, s.keypoint_format, ctx.rig)
+        out = {"detections": dets}
+    else:
+        from pipeline.stages.detect2d import run_videos
+
+        dets = run_videos({k: ctx.resolve(v) for k, v in s.videos.items()}, ctx.rig, ctx.progress)
+        out = {"detections": dets}
+    if cfg.min_keypoint_conf > 0:
+        low = dets.keypoint_conf < cfg.min_keypoint_conf
+        kw = dict(dets.__dict__)
+        kw["keypoint_valid"] = dets.keypoint_valid & ~low
+        out["detections"] = type(dets)(**kw)
+    ctx.metrics.update(
+        detections=int(dets.n_dets),
+        mean_dets_per_view_frame=round(float(dets.n_dets) / max(1, dets.n_views * dets.n_frames), 2),
+        valid_keypoints_pct=round(100 * float(np.mean(dets.keypoint_valid)) if dets.n_dets else 0.0, 1),
+    )
+    return out
+
+
+SPEC = StageSpec(
+    name="detect2d",
+    deps=(),
+    config_cls=Detect2DStepConfig,
+    execute=_execute,
+    input_files=_input_files,
+    description="2D person detection and keypoints per camera",
+)

@@ -1,0 +1,46 @@
+"""track step: persistent per-view track ids, then the human track edits overlay."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from pipeline.runner.spec import StageContext, StageSpec
+from pipeline.schema.detections import Detections2D, Tracks2D
+from pipeline.stages.track_edits import apply_track_edits
+
+
+@dataclass(frozen=True)
+class TrackStepConfig:
+    use_source_ids: bool = True
+    """Keep the track ids that came with the input (synthetic bout, tracked keypoints)."""
+
+
+def _execute(ctx: StageContext, cfg: TrackStepConfig) -> dict[str, Any]:
+    dets = ctx.load("detect2d", "detections", Detections2D)
+    if cfg.use_source_ids and ctx.has("detect2d", "source_tracks.npz"):
+        with np.load(ctx.store.path("detect2d", "source_tracks.npz"), allow_pickle=False) as z:
+            ids = z["track_id"]
+        tracks = Tracks2D.from_detections(dets, ids)
+    else:
+        from pipeline.stages.track import run as run_tracker
+
+        tracks = run_tracker(dets, ctx.rig)
+    edits = ctx.annotations
+    if edits:
+        tracks = apply_track_edits(tracks, ctx.rig.names, edits)
+    n_tracks = sum(len(np.unique(tracks.track_id[(tracks.view == v) & (tracks.track_id >= 0)])) for v in range(tracks.n_views))
+    ctx.metrics.update(tracks=int(n_tracks), edits_applied=len(edits))
+    return {"tracks": tracks}
+
+
+SPEC = StageSpec(
+    name="track",
+    deps=("detect2d",),
+    config_cls=TrackStepConfig,
+    execute=_execute,
+    consumes_annotations=True,
+    description="per-view tracking with persistent ids (+ human track edits)",
+)

@@ -1,0 +1,113 @@
+"""The session description: ``<session>/session.json``.
+
+A session is one bout: a folder with ``session.json``, an ``inputs/`` folder, the
+optional ``annotations.json`` overlay and the ``artifacts/`` written by the runner.
+All paths inside ``session.json`` are relative to the session folder (absolute
+paths are accepted for server-side folders).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+SourceKind = Literal["video", "keypoints", "tracks"]
+KeypointFormat = Literal["openpose", "coco"]
+
+
+@dataclass(frozen=True)
+class SessionConfig:
+    """What a session holds and how to run it.
+
+    Fields:
+        name: human-readable bout name.
+        source: ``"video"`` (videos -> detect2d runs the ONNX models),
+            ``"keypoints"`` (2D keypoint files: OpenPose or COCO JSON) or
+            ``"tracks"`` (a ``Tracks2D`` npz, as the synthetic bout provides).
+        calibration: calibration file (TOML, Qualisys .qca.txt, EasyMocap
+            intri/extri folder, or Campus/Shelf JSON).
+        videos: camera name -> video file (``source="video"``).
+        keypoints: camera name -> folder or file of 2D keypoints (``source="keypoints"``).
+        keypoint_format: format of ``keypoints``.
+        tracks: path of a ``Tracks2D`` npz (``source="tracks"``).
+        ground_truth: optional ``Keypoints3D`` npz (``source="gt"``) for evaluation.
+        fps: frame rate; overrides the calibration's when set (> 0).
+        athletes: display names of the athletes, by global person id order.
+        stage_config: per-stage config overrides, ``{"triangulate": {"min_views": 2}}``.
+        stages: stages to run (default: every stage the runner knows).
+        auto_rerun: when an annotation is written, re-run the stale stages.
+    """
+
+    name: str
+    source: SourceKind
+    calibration: str
+    videos: dict[str, str] = field(default_factory=dict)
+    keypoints: dict[str, str] = field(default_factory=dict)
+    keypoint_format: KeypointFormat = "openpose"
+    tracks: str = ""
+    ground_truth: str = ""
+    fps: float = 0.0
+    athletes: tuple[str, ...] = ("Red", "Blue")
+    stage_config: dict[str, dict[str, Any]] = field(default_factory=dict)
+    stages: tuple[str, ...] = ()
+    auto_rerun: bool = True
+
+    def __post_init__(self) -> None:
+        if self.source not in ("video", "keypoints", "tracks"):
+            raise ValueError(f"session.source must be video/keypoints/tracks, got {self.source!r}")
+        if not self.calibration:
+            raise ValueError("session.calibration is required")
+        if self.source == "video" and not self.videos:
+            raise ValueError("session.source='video' needs a non-empty 'videos' mapping")
+        if self.source == "keypoints" and not self.keypoints:
+            raise ValueError("session.source='keypoints' needs a non-empty 'keypoints' mapping")
+        if self.source == "tracks" and not self.tracks:
+            raise ValueError("session.source='tracks' needs 'tracks' (a Tracks2D npz)")
+        if self.keypoint_format not in ("openpose", "coco"):
+            raise ValueError(f"session.keypoint_format must be openpose/coco, got {self.keypoint_format!r}")
+        if self.fps < 0:
+            raise ValueError(f"session.fps must be >= 0, got {self.fps}")
+
+    def to_json(self) -> str:
+        d = asdict(self)
+        d["athletes"] = list(self.athletes)
+        d["stages"] = list(self.stages)
+        return json.dumps(d, indent=2, sort_keys=True)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], where: str = "session.json") -> SessionConfig:
+        if not isinstance(d, dict):
+            raise ValueError(f"{where}: expected a JSON object")
+        known = set(cls.__dataclass_fields__)
+        extra = set(d) - known
+        if extra:
+            raise ValueError(f"{where}: unknown keys {sorted(extra)}; known: {sorted(known)}")
+        kw = dict(d)
+        for k in ("athletes", "stages"):
+            if k in kw:
+                kw[k] = tuple(kw[k])
+        try:
+            return cls(**kw)
+        except TypeError as e:
+            raise ValueError(f"{where}: {e}") from e
+        except ValueError as e:
+            raise ValueError(f"{where}: {e}") from e
+
+    @classmethod
+    def load(cls, session_dir: Path) -> SessionConfig:
+        path = Path(session_dir) / "session.json"
+        if not path.exists():
+            raise ValueError(f"{path}: no session.json (is {session_dir} a cornerman session folder?)")
+        try:
+            d = json.loads(path.read_text())
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path}: malformed JSON: {e}") from e
+        return cls.from_dict(d, where=str(path))
+
+    def save(self, session_dir: Path) -> None:
+        path = Path(session_dir) / "session.json"
+        tmp = path.with_suffix(".json.tmp")
+        tmp.write_text(self.to_json())
+        tmp.replace(path)

@@ -1,0 +1,1 @@
+"""cornerman pipeline.synthetic."""
