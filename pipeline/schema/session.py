@@ -33,6 +33,9 @@ class SessionConfig:
         keypoint_format: format of ``keypoints``.
         tracks: path of a ``Tracks2D`` npz (``source="tracks"``).
         ground_truth: optional ``Keypoints3D`` npz (``source="gt"``) for evaluation.
+        ground_truth_labels: optional npz of per-detection true person ids
+            (``person_of_det``, aligned with the input tracks) and foot contacts
+            (``foot_contact``: frames x persons x 2 bool), for evaluation.
         fps: frame rate; overrides the calibration's when set (> 0).
         athletes: display names of the athletes, by global person id order.
         stage_config: per-stage config overrides, ``{"triangulate": {"min_views": 2}}``.
@@ -48,6 +51,7 @@ class SessionConfig:
     keypoint_format: KeypointFormat = "openpose"
     tracks: str = ""
     ground_truth: str = ""
+    ground_truth_labels: str = ""
     fps: float = 0.0
     athletes: tuple[str, ...] = ("Red", "Blue")
     stage_config: dict[str, dict[str, Any]] = field(default_factory=dict)
