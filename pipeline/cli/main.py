@@ -1,0 +1,299 @@
+"""The ``cornerman`` command line (typer)."""
+
+from __future__ import annotations
+
+import importlib
+import json
+import logging
+import os
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+app = typer.Typer(
+    name="cornerman",
+    help="Physics-based multi-person 3D motion capture for combat sports.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+)
+console = Console()
+
+BENCHES = {
+    "triangulation": "pipeline.bench.triangulation",
+    "fit": "pipeline.bench.fit",
+    "physics": "pipeline.bench.physics",
+    "video": "pipeline.bench.video",
+    "server": "server.loadtest",
+}
+
+
+def _home() -> Path:
+    return Path(os.environ.get("CORNERMAN_HOME", "data/server"))
+
+
+def _setup_logging(verbose: bool) -> None:
+    logging.basicConfig(
+        level=logging.DEBUG if verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+
+
+def _fail(msg: str) -> None:
+    console.print(f"[bold red]error:[/] {msg}")
+    raise typer.Exit(code=2)
+
+
+def _run_with_progress(session: Path, from_stage: str | None, to_stage: str | None, force: bool) -> list[Any]:
+    from pipeline.cli.progress import RichProgress, summary_table
+    from pipeline.runner import run
+
+    with RichProgress(console) as prog:
+        reports = run(session, from_stage=from_stage, to_stage=to_stage, force=force, progress=prog)
+    console.print(summary_table(reports))
+    return reports
+
+
+@app.command()
+def demo(
+    no_serve: Annotated[bool, typer.Option("--no-serve", help="Stop after the pipeline; do not start the app.")] = False,
+    session_dir: Annotated[Path | None, typer.Option(help="Where to create the demo session.")] = None,
+    frames: Annotated[int, typer.Option(help="Frames of the synthetic bout (50 fps).")] = 300,
+    cameras: Annotated[int, typer.Option(help="Number of cameras (2-8).")] = 4,
+    seed: Annotated[int, typer.Option(help="Random seed of the bout.")] = 0,
+    host: Annotated[str, typer.Option(help="Host to serve on.")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="API port.")] = 8000,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """Generate the built-in synthetic sparring bout, run every stage, then serve the app."""
+    _setup_logging(verbose)
+    from pipeline.synthetic import SyntheticConfig, make_demo_session
+
+    session = session_dir or (_home() / "sessions" / "demo")
+    session.parent.mkdir(parents=True, exist_ok=True)
+    console.print(f"[bold]demo bout[/]: {frames} frames, {cameras} cameras, seed {seed} -> {session}")
+    try:
+        make_demo_session(session, SyntheticConfig(seed=seed, n_frames=frames, n_cameras=cameras))
+        _run_with_progress(session, None, None, False)
+    except ValueError as e:
+        _fail(str(e))
+    if no_serve:
+        console.print(f"session ready: {session}  (serve it with `cornerman serve`)")
+        return
+    from server.cli import serve as serve_app
+
+    serve_app(host=host, port=port, workers=1, home=_home(), demo_session=session)
+
+
+@app.command("run")
+def run_cmd(
+    session: Annotated[Path, typer.Argument(help="Session folder (with session.json).")],
+    from_stage: Annotated[str | None, typer.Option("--from-stage", help="Re-run from this stage on.")] = None,
+    to_stage: Annotated[str | None, typer.Option("--to-stage", help="Stop after this stage.")] = None,
+    force: Annotated[bool, typer.Option(help="Re-run every stage even when fresh.")] = False,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """Run a session's stages, skipping the fresh ones."""
+    _setup_logging(verbose)
+    try:
+        _run_with_progress(session, from_stage, to_stage, force)
+    except ValueError as e:
+        _fail(str(e))
+
+
+@app.command()
+def status(session: Annotated[Path, typer.Argument(help="Session folder.")]) -> None:
+    """Per stage: fresh, stale or missing."""
+    from pipeline.artifacts import ArtifactStore
+    from pipeline.runner import stage_status
+
+    try:
+        st = stage_status(session)
+    except ValueError as e:
+        _fail(str(e))
+        return
+    store = ArtifactStore(session)
+    table = Table(title=f"status of {session}")
+    for c in ("stage", "status", "last run", "time [s]"):
+        table.add_column(c)
+    colours = {"fresh": "green", "stale": "yellow", "missing": "red"}
+    import datetime as dt
+
+    for stage, s in st.items():
+        m = store.manifest(stage)
+        when = dt.datetime.fromtimestamp(m.created_unix_s).isoformat(timespec="seconds") if m else ""
+        table.add_row(stage, f"[{colours[s]}]{s}[/]", when, f"{m.duration_s:.2f}" if m else "")
+    console.print(table)
+
+
+@app.command()
+def export(
+    session: Annotated[Path, typer.Argument(help="Session folder.")],
+    format: Annotated[str, typer.Option("--format", "-f", help="json or npz.")] = "json",
+    source: Annotated[str, typer.Option(help="Which 3D result: filtered, raw, fit or physics (default: the latest available).")] = "",
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Output file.")] = None,
+) -> None:
+    """Export 3D keypoints (JSON as documented in the README, or NPZ)."""
+    from pipeline.artifacts import ArtifactStore
+    from pipeline.io.export import write_export
+    from pipeline.schema import Keypoints3D, SessionConfig
+
+    where = {"raw": ("triangulate", "raw"), "filtered": ("triangulate", "keypoints3d"), "fit": ("fit", "keypoints3d"), "physics": ("physics", "keypoints3d")}
+    try:
+        if format not in ("json", "npz"):
+            raise ValueError(f"--format must be json or npz, got {format!r}")
+        cfg = SessionConfig.load(session)
+        store = ArtifactStore(session)
+        if source:
+            if source not in where:
+                raise ValueError(f"--source must be one of {sorted(where)}, got {source!r}")
+            candidates = [source]
+        else:
+            candidates = ["physics", "fit", "filtered"]
+        chosen = next((s for s in candidates if store.has(where[s][0], where[s][1] + ".npz")), None)
+        if chosen is None:
+            raise ValueError(f"{session}: no 3D result ({', '.join(candidates)}) yet; run `cornerman run {session}` first")
+        kp = store.load(*where[chosen], Keypoints3D)
+        names = {i: n for i, n in enumerate(cfg.athletes)}
+        path = out or (session / f"keypoints3d_{chosen}.{format}")
+        write_export(kp, format, path, names)  # type: ignore[arg-type]
+    except ValueError as e:
+        _fail(str(e))
+        return
+    console.print(f"wrote {path} ({chosen}, {kp.n_frames} frames, {kp.n_persons} persons)")
+
+
+@app.command()
+def new(
+    session: Annotated[Path, typer.Argument(help="Session folder to create.")],
+    calibration: Annotated[Path, typer.Option(help="Calibration file or folder.")],
+    video: Annotated[list[str], typer.Option(help="CAM=PATH, repeated, one per camera.")] = [],  # noqa: B006
+    keypoints: Annotated[list[str], typer.Option(help="CAM=PATH of 2D keypoints, repeated.")] = [],  # noqa: B006
+    keypoint_format: Annotated[str, typer.Option(help="openpose or coco.")] = "openpose",
+    name: Annotated[str, typer.Option(help="Bout name.")] = "",
+    fps: Annotated[float, typer.Option(help="Frame rate (0 = from calibration/video).")] = 0.0,
+) -> None:
+    """Create a session folder from videos or 2D keypoints + a calibration."""
+    from pipeline.schema import SessionConfig
+
+    def pairs(items: list[str], what: str) -> dict[str, str]:
+        out = {}
+        for it in items:
+            if "=" not in it:
+                raise ValueError(f"--{what} expects CAM=PATH, got {it!r}")
+            cam, p = it.split("=", 1)
+            if not Path(p).exists():
+                raise ValueError(f"--{what} {cam}: {p} does not exist")
+            out[cam] = str(Path(p).resolve())
+        return out
+
+    try:
+        if not calibration.exists():
+            raise ValueError(f"{calibration}: calibration not found")
+        vids, kps = pairs(video, "video"), pairs(keypoints, "keypoints")
+        if bool(vids) == bool(kps):
+            raise ValueError("give either --video CAM=PATH ... or --keypoints CAM=PATH ..., not both or neither")
+        cfg = SessionConfig(
+            name=name or session.name,
+            source="video" if vids else "keypoints",
+            calibration=str(calibration.resolve()),
+            videos=vids,
+            keypoints=kps,
+            keypoint_format=keypoint_format,  # type: ignore[arg-type]
+            fps=fps,
+        )
+        session.mkdir(parents=True, exist_ok=True)
+        if (session / "session.json").exists():
+            raise ValueError(f"{session}/session.json exists already; choose another folder")
+        cfg.save(session)
+    except ValueError as e:
+        _fail(str(e))
+    console.print(f"created {session}; run it with `cornerman run {session}`")
+
+
+def _parse_opt(items: list[str]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for it in items:
+        if "=" not in it:
+            raise ValueError(f"--opt expects KEY=VALUE, got {it!r}")
+        k, v = it.split("=", 1)
+        try:
+            out[k] = json.loads(v)
+        except json.JSONDecodeError:
+            out[k] = v
+    return out
+
+
+@app.command()
+def bench(
+    name: Annotated[str, typer.Argument(help=f"One of: {', '.join(BENCHES)}.")],
+    opt: Annotated[list[str], typer.Option(help="KEY=VALUE options passed to the benchmark.")] = [],  # noqa: B006
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """Run a benchmark and print its table (speed and accuracy targets live here, not in tests)."""
+    _setup_logging(verbose)
+    if name not in BENCHES:
+        _fail(f"unknown benchmark {name!r}; choose one of {list(BENCHES)}")
+    try:
+        mod = importlib.import_module(BENCHES[name])
+    except ModuleNotFoundError as e:
+        _fail(f"benchmark {name!r} is not available in this build ({e})")
+        return
+    try:
+        rows = mod.run_bench(**_parse_opt(opt))
+    except ValueError as e:
+        _fail(str(e))
+        return
+    if hasattr(mod, "print_table"):
+        mod.print_table(rows)
+    else:
+        from pipeline.cli.progress import rows_table
+
+        console.print(rows_table(f"bench {name}", rows))
+
+
+@app.command()
+def serve(
+    host: Annotated[str, typer.Option(help="Host to bind.")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="API port.")] = 8000,
+    workers: Annotated[int, typer.Option(help="Worker processes to start with the API.")] = 1,
+    home: Annotated[Path | None, typer.Option(help="Server home (database + sessions); env CORNERMAN_HOME.")] = None,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """Start the API server (FastAPI + uvicorn) and job workers."""
+    _setup_logging(verbose)
+    from server.cli import serve as serve_app
+
+    serve_app(host=host, port=port, workers=workers, home=home or _home(), demo_session=None)
+
+
+@app.command()
+def worker(
+    home: Annotated[Path | None, typer.Option(help="Server home; env CORNERMAN_HOME.")] = None,
+    executor: Annotated[str, typer.Option(help="local or ray.")] = "local",
+    ray_address: Annotated[str | None, typer.Option(help="Ray cluster address (with --executor ray).")] = None,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """Start one more job worker (claims queued jobs from the server's database)."""
+    _setup_logging(verbose)
+    from server.cli import worker as worker_main
+
+    worker_main(home=home or _home(), executor=executor, ray_address=ray_address)
+
+
+def _mount_subapps() -> None:
+    try:
+        from pipeline.cli.models import app as models_app
+    except ModuleNotFoundError:
+        return
+    app.add_typer(models_app, name="models", help="Model registry: list, download, verify.")
+
+
+_mount_subapps()
+
+
+def main() -> None:  # pragma: no cover - entry point
+    sys.exit(app())

@@ -1,0 +1,109 @@
+"""Exports of 3D results: JSON (documented in the README) and NPZ.
+
+JSON format (``keypoints3d_to_json``)::
+
+    {
+      "format": "cornerman.keypoints3d/v1",
+      "source": "filtered" | "fit" | "physics" | ...,
+      "fps": 50.0,
+      "units": "m",
+      "frame": "calibration world, z-up, right-handed",
+      "joint_names": ["nose", ...],
+      "persons": [
+        {"id": 0, "name": "Red",
+         "frame_indices": [0, 1, ...],
+         "joints": [[[x, y, z] | null, ...joints], ...frames],
+         "confidence": [[c, ...joints], ...frames]}
+      ]
+    }
+
+``null`` marks a joint without an estimate in that frame.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from pipeline.schema.base import to_arrays
+from pipeline.schema.keypoints3d import Keypoints3D
+
+ExportFormat = Literal["json", "npz"]
+JSON_FORMAT_ID = "cornerman.keypoints3d/v1"
+
+
+def keypoints3d_to_json(kp: Keypoints3D, names: dict[int, str] | None = None) -> dict[str, Any]:
+    """The README's JSON export as a dict (coordinates rounded to 0.1 mm)."""
+    names = names or {}
+    persons = []
+    for pi, pid in enumerate(kp.person_ids.tolist()):
+        xyz = np.round(kp.xyz_m[:, pi], 4)
+        valid = kp.valid[:, pi]
+        joints = [
+            [xyz[f, j].tolist() if valid[f, j] else None for j in range(len(kp.joint_names))] for f in range(kp.n_frames)
+        ]
+        conf = np.round(np.where(valid, kp.confidence[:, pi], 0.0), 3).tolist()
+        persons.append(
+            {
+                "id": int(pid),
+                "name": names.get(int(pid), ""),
+                "frame_indices": kp.frame_indices.tolist(),
+                "joints": joints,
+                "confidence": conf,
+            }
+        )
+    return {
+        "format": JSON_FORMAT_ID,
+        "source": kp.source,
+        "fps": float(kp.fps),
+        "units": "m",
+        "frame": "calibration world, z-up, right-handed",
+        "joint_names": list(kp.joint_names),
+        "persons": persons,
+    }
+
+
+def keypoints3d_from_json(d: dict[str, Any], where: str = "<json>") -> Keypoints3D:
+    """Inverse of :func:`keypoints3d_to_json` (for round-trip tests and re-import)."""
+    if d.get("format") != JSON_FORMAT_ID:
+        raise ValueError(f"{where}: not a {JSON_FORMAT_ID} export (format={d.get('format')!r})")
+    persons = d["persons"]
+    frames = np.asarray(persons[0]["frame_indices"] if persons else [], dtype=np.int64)
+    j = len(d["joint_names"])
+    kp = Keypoints3D.empty(tuple(d["joint_names"]), np.array([p["id"] for p in persons]), frames, d["fps"], d["source"])
+    xyz, valid, conf = kp.xyz_m.copy(), kp.valid.copy(), kp.confidence.copy()
+    for pi, p in enumerate(persons):
+        if len(p["joints"]) != len(frames):
+            raise ValueError(f"{where}: person {p['id']} has {len(p['joints'])} frames, expected {len(frames)}")
+        for f, row in enumerate(p["joints"]):
+            if len(row) != j:
+                raise ValueError(f"{where}: person {p['id']} frame {f} has {len(row)} joints, expected {j}")
+            for jj, v in enumerate(row):
+                if v is not None:
+                    xyz[f, pi, jj] = v
+                    valid[f, pi, jj] = True
+        conf[:, pi] = np.asarray(p["confidence"], dtype=np.float64)
+    return kp.replace(xyz_m=xyz, valid=valid, confidence=conf)
+
+
+def export_keypoints3d(kp: Keypoints3D, fmt: ExportFormat, names: dict[int, str] | None = None) -> bytes:
+    """Serialise keypoints in ``fmt`` ("json" or "npz")."""
+    if fmt == "json":
+        return json.dumps(keypoints3d_to_json(kp, names), separators=(",", ":")).encode()
+    if fmt == "npz":
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **to_arrays(kp))
+        return buf.getvalue()
+    raise ValueError(f"unknown export format {fmt!r}; supported: json, npz")
+
+
+def write_export(kp: Keypoints3D, fmt: ExportFormat, path: Path, names: dict[int, str] | None = None) -> Path:
+    data = export_keypoints3d(kp, fmt, names)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_bytes(data)
+    tmp.replace(path)
+    return path
