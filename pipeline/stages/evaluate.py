@@ -1,0 +1,174 @@
+"""evaluate: accuracy metrics against ground truth and per-frame problem flags.
+
+Pure: gets the 3D results of every stage that ran, the 2D tracks and association,
+and (optionally) ground truth; returns a metrics dict and the per-frame flags the
+viewer's timeline marks ("identity confidence low", "reprojection error high",
+"penetration high").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from pipeline.evaluate import metrics as M
+from pipeline.schema.association import Association
+from pipeline.schema.camera import CameraRig
+from pipeline.schema.detections import Tracks2D
+from pipeline.schema.joints import COCO17
+from pipeline.schema.keypoints3d import Keypoints3D
+
+
+@dataclass(frozen=True)
+class EvaluateConfig:
+    identity_conf_low: float = 0.5
+    """A frame is flagged when an athlete's lowest association confidence is below this."""
+    reproj_high_px: float = 15.0
+    """A frame is flagged when the median reprojection error of an athlete exceeds this (pixels)."""
+    penetration_high_mm: float = 20.0
+    """A frame is flagged when the inter-person penetration exceeds this (millimetres)."""
+    body_radius_m: float = 0.06
+    """Radius of the capsule proxy around bones used to estimate penetration from keypoints."""
+
+
+@dataclass(frozen=True)
+class EvaluateInputs:
+    rig: CameraRig
+    tracks: Tracks2D
+    association: Association
+    sources: dict[str, Keypoints3D]
+    """3D results by name (``raw``, ``filtered``, ``fit``, ``physics``), in pipeline order."""
+    gt: Keypoints3D | None = None
+    gt_person_of_det: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class ProblemFlags:
+    """Per-frame signals for the viewer (arrays of shape (frames,))."""
+
+    frame_indices: np.ndarray
+    identity_conf_min: np.ndarray
+    reproj_err_px: np.ndarray
+    penetration_mm: np.ndarray
+    flags: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), bool))
+    """(frames, 3) bool: identity low, reprojection high, penetration high."""
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return {k: np.asarray(v) for k, v in self.__dict__.items()}
+
+
+def _clean(x: float) -> float | None:
+    return None if x is None or (isinstance(x, float) and math.isnan(x)) else round(float(x), 4)
+
+
+def _segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
+    """Closest distance between segments [p0,p1] and [q0,q1], batched over leading dims."""
+    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
+    a = (d1 * d1).sum(-1)
+    e = (d2 * d2).sum(-1)
+    f = (d2 * r).sum(-1)
+    c = (d1 * r).sum(-1)
+    b = (d1 * d2).sum(-1)
+    denom = a * e - b * b
+    s = np.clip(np.where(denom > 1e-12, (b * f - c * e) / np.maximum(denom, 1e-12), 0.0), 0, 1)
+    t = (b * s + f) / np.maximum(e, 1e-12)
+    t_c = np.clip(t, 0, 1)
+    s = np.where(t < 0, np.clip(-c / np.maximum(a, 1e-12), 0, 1), np.where(t > 1, np.clip((b - c) / np.maximum(a, 1e-12), 0, 1), s))
+    cp = p0 + d1 * s[..., None]
+    cq = q0 + d2 * t_c[..., None]
+    return np.asarray(np.linalg.norm(cp - cq, axis=-1))
+
+
+def capsule_penetration_mm(kp: Keypoints3D, radius_m: float) -> np.ndarray:
+    """(frames,) max overlap between bone capsules of different persons, in mm (0 = apart).
+
+    A keypoint-only proxy used when no physics result exists: every limb is a capsule
+    of ``radius_m`` around its bone.
+    """
+    from pipeline.schema.joints import PCP_LIMBS, bone_indices
+
+    bones = np.array(bone_indices(kp.joint_names, PCP_LIMBS + (("left_shoulder", "left_hip"), ("right_shoulder", "right_hip"))))
+    F = kp.n_frames
+    out = np.zeros(F)
+    if kp.n_persons < 2 or bones.size == 0:
+        return out
+    X, ok = kp.xyz_m, kp.valid
+    for i in range(kp.n_persons):
+        for j in range(i + 1, kp.n_persons):
+            a0, a1 = X[:, i, bones[:, 0]], X[:, i, bones[:, 1]]  # (F, B, 3)
+            b0, b1 = X[:, j, bones[:, 0]], X[:, j, bones[:, 1]]
+            d = _segment_distance(a0[:, :, None], a1[:, :, None], b0[:, None], b1[:, None])  # (F, B, B)
+            va = ok[:, i, bones[:, 0]] & ok[:, i, bones[:, 1]]
+            vb = ok[:, j, bones[:, 0]] & ok[:, j, bones[:, 1]]
+            pen = np.where(va[:, :, None] & vb[:, None], np.maximum(0.0, 2 * radius_m - d), 0.0)
+            out = np.maximum(out, pen.max(axis=(1, 2)) * 1000.0)
+    return out
+
+
+def _source_metrics(est: Keypoints3D, gt: Keypoints3D) -> dict[str, Any]:
+    mapping = M.match_persons(est, gt)
+    coco = tuple(n for n in COCO17 if n in est.joint_names)
+    return {
+        "pcp_pct": _clean(100 * M.pcp(est, gt, mapping=mapping)),
+        "mpjpe_mm": _clean(M.mpjpe(est, gt, joint_names=coco, mapping=mapping)),
+        "mpjpe_all_joints_mm": _clean(M.mpjpe(est, gt, mapping=mapping)),
+        "pa_mpjpe_mm": _clean(M.pa_mpjpe(est, gt, joint_names=coco, mapping=mapping)),
+        "accel_error_mm_per_frame2": _clean(M.acceleration_error(est, gt, mapping=mapping)),
+        "coverage_pct": _clean(100 * M.coverage(est, gt, mapping=mapping)),
+    }
+
+
+def problem_flags(inp: EvaluateInputs, cfg: EvaluateConfig) -> ProblemFlags:
+    """Per-frame identity confidence, reprojection error and penetration, with thresholds applied."""
+    best = next(iter(reversed(inp.sources.values())))
+    frames = best.frame_indices
+    F = frames.size
+    row_of = {int(f): i for i, f in enumerate(frames)}
+    assigned = inp.association.person_of_det >= 0
+    id_min = np.ones(F)
+    if assigned.any():
+        rows = np.array([row_of.get(int(f), -1) for f in inp.tracks.frame[assigned]])
+        keep = rows >= 0
+        np.minimum.at(id_min, rows[keep], inp.association.confidence[assigned][keep])
+    reproj = np.zeros(F)
+    tri = inp.sources.get("filtered") or inp.sources.get("raw")
+    if tri is not None:
+        err = M.reprojection_error(tri, inp.tracks, inp.association, inp.rig)  # (dets, joints)
+        med = np.where(np.isfinite(err).any(axis=1), np.nanmedian(np.where(np.isfinite(err), err, np.nan), axis=1), np.nan) if err.size else np.zeros(0)
+        rows = np.array([row_of.get(int(f), -1) for f in inp.tracks.frame]) if err.size else np.zeros(0, int)
+        ok = (rows >= 0) & np.isfinite(med) if err.size else np.zeros(0, bool)
+        if ok.any():
+            np.maximum.at(reproj, rows[ok], med[ok])
+    pen = capsule_penetration_mm(best, cfg.body_radius_m)
+    flags = np.stack([id_min < cfg.identity_conf_low, reproj > cfg.reproj_high_px, pen > cfg.penetration_high_mm], axis=1)
+    return ProblemFlags(frames, id_min, reproj, pen, flags)
+
+
+def run(inp: EvaluateInputs, cfg: EvaluateConfig) -> tuple[dict[str, Any], ProblemFlags]:
+    """Metrics per 3D source (vs ground truth when present) and per-frame problem flags."""
+    if not inp.sources:
+        raise ValueError("evaluate: no 3D result to evaluate (run triangulate first)")
+    out: dict[str, Any] = {"sources": {}}
+    for name, kp in inp.sources.items():
+        m: dict[str, Any] = {"bone_length_std_mm": _clean(M.bone_length_std(kp))}
+        if inp.gt is not None:
+            m.update(_source_metrics(kp, inp.gt))
+        out["sources"][name] = m
+    if inp.gt_person_of_det is not None:
+        if inp.gt_person_of_det.shape != inp.association.person_of_det.shape:
+            raise ValueError(
+                f"evaluate: ground-truth labels cover {inp.gt_person_of_det.shape[0]} detections, "
+                f"the association {inp.association.person_of_det.shape[0]}"
+            )
+        out["identity_accuracy_pct"] = _clean(100 * M.identity_accuracy(inp.association.person_of_det, inp.gt_person_of_det))
+    flags = problem_flags(inp, cfg)
+    out["problem_frames"] = {
+        "identity_low": int(flags.flags[:, 0].sum()),
+        "reprojection_high": int(flags.flags[:, 1].sum()),
+        "penetration_high": int(flags.flags[:, 2].sum()),
+    }
+    out["penetration_proxy_max_mm"] = _clean(float(flags.penetration_mm.max(initial=0.0)))
+    return out, flags
