@@ -41,7 +41,9 @@ def load_toml(path: str | Path, default_fps: float = 30.0) -> CameraRig:
     except UnicodeDecodeError as e:
         raise ValueError(f"{path}: not a text file: {e}") from e
     meta = data.get("metadata", {})
-    fps = float(meta.get("fps", default_fps)) if isinstance(meta, dict) else default_fps
+    fps = meta.get("fps", default_fps) if isinstance(meta, dict) else default_fps
+    if isinstance(fps, bool) or not isinstance(fps, int | float) or not fps > 0:
+        raise ValueError(f"{path} [metadata]: fps must be a positive number, got {fps!r}")
     names, Ks, dists, Ts, sizes, offsets = [], [], [], [], [], []
     for key, cam in data.items():
         if key == "metadata" or not isinstance(cam, dict):
@@ -50,8 +52,15 @@ def load_toml(path: str | Path, default_fps: float = 30.0) -> CameraRig:
         for req in ("size", "matrix", "distortions", "rotation", "translation"):
             if req not in cam:
                 raise ValueError(f"{where}: missing key {req!r}")
+        if cam.get("fisheye", False):
+            # The rig keeps OpenCV's pinhole distortion only; reading fisheye
+            # coefficients as pinhole ones would silently misproject.
+            raise ValueError(f"{where}: fisheye cameras are not supported (fisheye = true)")
         K = _as_float_array(where, "matrix", cam["matrix"], (3, 3))
-        d = np.asarray(cam["distortions"], dtype=np.float64).ravel()
+        try:
+            d = np.asarray(cam["distortions"], dtype=np.float64).ravel()
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"{where}: distortions are not numeric: {e}") from e
         if d.size not in (4, 5) or not np.all(np.isfinite(d)):
             raise ValueError(f"{where}: distortions must be 4 or 5 finite numbers, got {cam['distortions']}")
         dist = np.zeros(5)
@@ -68,7 +77,10 @@ def load_toml(path: str | Path, default_fps: float = 30.0) -> CameraRig:
         dists.append(dist)
         Ts.append(T)
         sizes.append(np.round(size).astype(np.int64))
-        offsets.append(float(cam.get("time_offset_s", 0.0)))
+        offset = cam.get("time_offset_s", 0.0)
+        if isinstance(offset, bool) or not isinstance(offset, int | float) or not np.isfinite(offset):
+            raise ValueError(f"{where}: time_offset_s must be a finite number, got {offset!r}")
+        offsets.append(float(offset))
     if not names:
         raise ValueError(f"{path}: no camera tables found")
     try:
@@ -78,7 +90,7 @@ def load_toml(path: str | Path, default_fps: float = 30.0) -> CameraRig:
             dist=np.stack(dists),
             T_world_cam=np.stack(Ts),
             image_size_wh=np.stack(sizes),
-            fps=fps,
+            fps=float(fps),
             time_offset_s=np.asarray(offsets),
         )
     except ValueError as e:
