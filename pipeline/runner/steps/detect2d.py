@@ -51,10 +51,13 @@ def _execute(ctx: StageContext, cfg: Detect2DStepConfig) -> dict[str, Any]:
         dets = tracks.detections()
         out: dict[str, Any] = {"detections": dets, "source_tracks": {"track_id": tracks.track_id}}
     elif s.source == "keypoints":
-        from pipeline.io.keypoints2d import load_keypoints
+        from pipeline.io.keypoints2d import load_keypoints_with_ids
 
-        dets = load_keypoints({k: ctx.resolve(v) for k, v in s.keypoints.items()}, s.keypoint_format, ctx.rig)
+        dets, ids = load_keypoints_with_ids({k: ctx.resolve(v) for k, v in s.keypoints.items()}, s.keypoint_format, ctx.rig)
         out = {"detections": dets}
+        if ids is not None and np.all(ids >= 0):
+            # Tracked keypoints (OpenPose person_id / COCO track_id): keep their ids.
+            out["source_tracks"] = {"track_id": ids.astype(np.int64)}
     else:
         from pipeline.stages.detect2d import run_videos
 

@@ -1,0 +1,66 @@
+"""Configuration of the built-in synthetic sparring bout."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class SyntheticConfig:
+    """What to generate. Every random choice derives from ``seed`` (same seed -> same arrays)."""
+
+    seed: int = 0
+    """Seed of every random choice (body proportions, choreography, rig, noise, misses, swaps)."""
+
+    n_cameras: int = 4
+    """Number of cameras on a circle around the ring, 2..8."""
+
+    n_frames: int = 300
+    """Number of synchronised frames. The script cycles exchange -> clinch -> range phases
+    (~4.5 s per cycle); at 50 fps the first clinch contact is at ~1.7 s (frame ~85)."""
+
+    fps: float = 50.0
+    """Frame rate of the rig in Hz."""
+
+    noise_px: float = 3.0
+    """Standard deviation of the Gaussian pixel noise added to visible keypoints (occluded
+    ones that are kept get 2.5x that)."""
+
+    miss_rate: float = 0.03
+    """Probability that a whole detection (one person in one view and frame) is missed."""
+
+    bystander: bool = True
+    """Add a walking bystander outside the ring, seen by some cameras only (true id -1)."""
+
+    id_swaps: bool = True
+    """Inject per-view track-id swaps at frames where the boxers' boxes overlap strongly."""
+
+    distortion: bool = False
+    """Give the cameras OpenCV lens distortion (k1 in [-0.25, -0.1])."""
+
+    clinch: bool = True
+    """Include clinch phases (bodies touching, arms around the other). When False the clinch
+    phases are replaced by close-range exchanges without contact."""
+
+    image_size_wh: tuple[int, int] = (1280, 720)
+    """Image width and height in pixels (same for every camera)."""
+
+    def __post_init__(self) -> None:
+        if not 2 <= self.n_cameras <= 8:
+            raise ValueError(f"SyntheticConfig.n_cameras must be in 2..8, got {self.n_cameras}")
+        if self.n_frames < 2:
+            raise ValueError(f"SyntheticConfig.n_frames must be >= 2, got {self.n_frames}")
+        if not (np.isfinite(self.fps) and 5.0 <= self.fps <= 1000.0):
+            raise ValueError(f"SyntheticConfig.fps must be in [5, 1000] Hz, got {self.fps}")
+        if not (np.isfinite(self.noise_px) and self.noise_px >= 0):
+            raise ValueError(f"SyntheticConfig.noise_px must be >= 0, got {self.noise_px}")
+        if not 0.0 <= self.miss_rate < 1.0:
+            raise ValueError(f"SyntheticConfig.miss_rate must be in [0, 1), got {self.miss_rate}")
+        if len(self.image_size_wh) != 2 or min(self.image_size_wh) < 64:
+            raise ValueError(
+                f"SyntheticConfig.image_size_wh must be two sizes >= 64 px, got {self.image_size_wh}"
+            )
+        if self.seed < 0:
+            raise ValueError(f"SyntheticConfig.seed must be >= 0, got {self.seed}")

@@ -1,0 +1,269 @@
+"""Forward kinematics of the synthetic persons: trunk, legs and head first, arms second.
+
+Each person is a rigid trunk (hips and shoulders in one frame, rotating about the
+mid-hip), a head on top, legs placed by two-bone IK onto planted/swinging feet and arms
+placed by two-bone IK onto fist targets (guard, punches, clinch grips). The arm pass
+needs both boxers' trunks, because clinch grips are anchored on the opponent's back.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+
+from pipeline.synthetic.choreo import CLINCH_DISTANCE_M, Choreography, Punch
+from pipeline.synthetic.curves import apply, bump, minjerk, rot_z, rot_zyx, softmin
+from pipeline.synthetic.footwork import FeetTrack, StepParams, plan_feet
+from pipeline.synthetic.skeleton import BodyDims, J, face_offsets, foot_offsets, two_bone_ik
+
+SIDES = ("left", "right")
+
+# Orthodox stance in the facing frame (x towards the opponent, y left), for a 1.75 m boxer:
+# (bladed guard, square clinch) foot positions and foot yaw offsets.
+GUARD_FEET_XY = np.array([[0.22, 0.13], [-0.22, -0.15]])
+SQUARE_FEET_XY = np.array([[0.09, 0.17], [-0.09, -0.17]])
+GUARD_FEET_YAW = np.array([-0.25, -0.9])
+SQUARE_FEET_YAW = np.array([-0.2, -0.5])
+# Fists in guard, relative to the neck in the facing frame (lead = left).
+GUARD_FIST = {"left": np.array([0.30, 0.03, 0.05]), "right": np.array([0.20, -0.09, 0.08])}
+# Lead hook: cubic Bezier control points (facing frame, relative to the neck, 1.75 m boxer)
+# from the guard around to in front of the chin line; no cusp, so the fist keeps moving.
+HOOK_CTRL = np.array([GUARD_FIST["left"], [0.42, 0.30, 0.02], [0.60, 0.22, 0.02], [0.55, -0.05, 0.05]])
+TWIST_RAD = {"jab": -0.12, "cross": 0.65, "lead_hook": -0.5}
+"""Trunk rotation added at full extension of each punch kind."""
+
+
+@dataclass(frozen=True)
+class Trunk:
+    """Trunk-level pose of one person over F frames (arms not yet placed).
+
+    Fields: joints (F, 23, 3) with legs, hips, shoulders and face set (arm joints zero);
+    pelvis (F, 3) mid-hip; neck (F, 3) mid-shoulder; head (F, 3) head-sphere centre;
+    R_trunk (F, 3, 3) trunk orientation (x forward, y left, z up); R_guard (F, 3, 3) the
+    facing frame tilted with the trunk (guard positions live there); feet: FeetTrack.
+    """
+
+    joints: np.ndarray
+    pelvis: np.ndarray
+    neck: np.ndarray
+    head: np.ndarray
+    R_trunk: np.ndarray
+    R_guard: np.ndarray
+    feet: FeetTrack
+
+
+def build_trunk(
+    body: BodyDims,
+    centre_xy: np.ndarray,
+    facing: np.ndarray,
+    trunk_yaw_offset: np.ndarray,
+    pitch: np.ndarray,
+    roll: np.ndarray,
+    crouch_m: np.ndarray,
+    feet_xy_local: np.ndarray,
+    feet_yaw_offset: np.ndarray,
+    step: StepParams,
+    fps: float,
+) -> Trunk:
+    """Place trunk, head and legs. ``feet_xy_local`` (F, 2, 2) and ``feet_yaw_offset`` (F, 2)
+    give the ideal foot placement in the facing frame; the feet follow by planted steps.
+
+    Raises ``ValueError`` if a planted foot ends up out of reach of its hip (a scripting bug).
+    """
+    n = facing.shape[0]
+    Rf = rot_z(facing)
+    ideal_xy = centre_xy[:, None, :] + np.einsum("fij,fkj->fki", Rf[:, :2, :2], feet_xy_local)
+    ideal_yaw = facing[:, None] + feet_yaw_offset
+    feet = plan_feet(ideal_xy, ideal_yaw, fps, step)
+    # The pelvis sits over the stance centre implied by the actual feet (it shifts with a
+    # swinging foot, like a weight transfer); smooth because the feet are.
+    implied = feet.origin_m[:, :, :2] - np.einsum("fij,fkj->fki", Rf[:, :2, :2], feet_xy_local)
+    pelvis_xy = implied.mean(axis=1)
+
+    R = rot_zyx(facing + trunk_yaw_offset, pitch, roll)
+    hip_off = [apply(R, np.array([0.0, s * body.hip_half_m, 0.0])) for s in (1.0, -1.0)]
+    ankle = feet.origin_m + np.array([0.0, 0.0, body.ankle_height_m])
+    reach = 0.985 * body.leg_m
+    z_caps = [body.hip_height_m - crouch_m]
+    for k in range(2):
+        dxy = np.linalg.norm(pelvis_xy + hip_off[k][:, :2] - ankle[:, k, :2], axis=1)
+        if np.any(dxy > reach - 0.02):
+            f = int(np.argmax(dxy))
+            raise ValueError(f"synthetic motion: {SIDES[k]} foot out of reach at frame {f} ({dxy[f]:.3f} m)")
+        z_caps.append(ankle[:, k, 2] - hip_off[k][:, 2] + np.sqrt(reach**2 - dxy**2))
+    pelvis = np.concatenate([pelvis_xy, softmin(z_caps, 0.01)[:, None]], axis=1)
+
+    joints = np.zeros((n, len(J), 3))
+    neck = pelvis + apply(R, np.array([0.0, 0.0, body.torso_m]))
+    for s, side in ((1.0, "left"), (-1.0, "right")):
+        joints[:, J[f"{side}_shoulder"]] = neck + apply(R, np.array([0.0, s * body.shoulder_half_m, 0.0]))
+    joints[:, J["left_hip"]] = pelvis + hip_off[0]
+    joints[:, J["right_hip"]] = pelvis + hip_off[1]
+
+    head = neck + apply(R, np.array([0.01 * body.height_m, 0.0, body.neck_m]))
+    R_head = rot_zyx(facing, 0.1 + 0.3 * pitch, 0.6 * roll)
+    for name, off in face_offsets(body).items():
+        joints[:, J[name]] = head + apply(R_head, off)
+
+    trunk_fwd = R[:, :, 0] * np.array([1.0, 1.0, 0.0])
+    for k, side in enumerate(SIDES):
+        Rfoot = rot_z(feet.yaw[:, k])
+        for name, off in foot_offsets(body, side).items():
+            joints[:, J[name]] = feet.origin_m[:, k] + apply(Rfoot, off)
+        out = 1.0 if side == "left" else -1.0
+        pole = Rfoot[:, :, 0] + 0.5 * trunk_fwd + 0.2 * out * Rfoot[:, :, 1]
+        knee, ank = two_bone_ik(
+            joints[:, J[f"{side}_hip"]],
+            ankle[:, k],
+            pole,
+            body.thigh_m,
+            body.shank_m,
+            knee_frac=0.99,
+            max_frac=0.998,
+        )
+        joints[:, J[f"{side}_knee"]] = knee
+        joints[:, J[f"{side}_ankle"]] = ankle[:, k]  # == ank (within reach by construction)
+        if np.max(np.abs(ank - ankle[:, k])) > 1e-9:
+            raise ValueError(f"synthetic motion: {side} ankle IK left the planted foot")
+    R_guard = rot_zyx(facing, pitch, roll)
+    return Trunk(joints, pelvis, neck, head, R, R_guard, feet)
+
+
+def place_arm(
+    joints: np.ndarray, body: BodyDims, side: str, wrist_target: np.ndarray, elbow_pole: np.ndarray
+) -> None:
+    """Two-bone IK of one arm onto ``wrist_target`` (F, 3); writes elbow and wrist in place."""
+    elbow, wrist = two_bone_ik(
+        joints[:, J[f"{side}_shoulder"]], wrist_target, elbow_pole, body.upper_arm_m, body.forearm_m
+    )
+    joints[:, J[f"{side}_elbow"]] = elbow
+    joints[:, J[f"{side}_wrist"]] = wrist
+
+
+def boxer_scalars(ch: Choreography, person: int, body: BodyDims) -> dict[str, np.ndarray]:
+    """Trunk angles and crouch of one boxer from stance, punches, slips and clinch."""
+    it = ch.boxers[person]
+    t = ch.t_s
+    q = it.square
+    yaw_off = -0.5 * (1.0 - q) - 0.12 * q
+    pitch = 0.12 + 0.18 * it.clinch_w
+    roll = -0.15 * it.clinch_w  # lean to the own left: the heads pass each other
+    crouch = (0.06 + 0.02 * it.clinch_w) * body.scale + 0.012 * np.sin(2 * np.pi * 1.8 * t + 1.3 * person)
+    for p in ch.punches:
+        if p.person == person:
+            yaw_off = yaw_off + TWIST_RAD[p.kind] * p.profile(t)
+    for s in ch.slips:
+        if s.person == person:
+            b = bump(t, s.t0_s, s.duration_s)
+            roll = roll - 0.28 * s.side * b
+            pitch = pitch + 0.1 * b
+            crouch = crouch + s.depth_m * b
+    return {"yaw_off": yaw_off, "pitch": pitch, "roll": roll, "crouch": crouch}
+
+
+def boxer_trunk(ch: Choreography, person: int, body: BodyDims, fps: float) -> Trunk:
+    """Trunk, head and legs of one boxer: orthodox stance blending into a square clinch
+    stance, footwork by planted steps (``StepParams`` defaults)."""
+    it = ch.boxers[person]
+    sc = boxer_scalars(ch, person, body)
+    q = it.square[:, None]
+    feet_xy = ((1 - q)[:, :, None] * GUARD_FEET_XY + q[:, :, None] * SQUARE_FEET_XY) * body.scale
+    feet_yaw = (1 - q) * GUARD_FEET_YAW + q * SQUARE_FEET_YAW
+    return build_trunk(
+        body,
+        it.centre_xy,
+        it.facing,
+        sc["yaw_off"],
+        sc["pitch"],
+        sc["roll"],
+        sc["crouch"],
+        feet_xy,
+        feet_yaw,
+        StepParams(),
+        fps,
+    )
+
+
+def _bezier(u: np.ndarray) -> np.ndarray:
+    c = HOOK_CTRL
+    u = u[:, None]
+    return (1 - u) ** 3 * c[0] + 3 * (1 - u) ** 2 * u * c[1] + 3 * (1 - u) * u**2 * c[2] + u**3 * c[3]
+
+
+_U = np.linspace(0.0, 1.0, 257)
+_ARC = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(_bezier(_U), axis=0), axis=1))])
+_ARC_TO_U = PchipInterpolator(_ARC / _ARC[-1], _U)
+HOOK_PATH_M = float(_ARC[-1])
+"""Length of the hook path for a 1.75 m boxer."""
+
+
+def hook_path(arc_frac: np.ndarray) -> np.ndarray:
+    """(F,) fraction of the hook's arc length -> (F, 3) point on it (C1 in the fraction)."""
+    return _bezier(_ARC_TO_U(np.clip(arc_frac, 0.0, 1.0)))
+
+
+def _frame_at(t_s: np.ndarray, time_s: float) -> int:
+    """Nearest frame index of ``time_s`` on the uniform frame clock ``t_s``."""
+    return int(np.clip(np.round(time_s * (len(t_s) - 1) / max(t_s[-1], 1e-9)), 0, len(t_s) - 1))
+
+
+def boxer_arms(
+    ch: Choreography, person: int, body: BodyDims, me: Trunk, opp: Trunk, opp_body: BodyDims
+) -> np.ndarray:
+    """Joints (F, 23, 3) of a boxer with arms placed (guard, punches, clinch grips)."""
+    t = ch.t_s
+    joints = me.joints.copy()
+    s = body.scale
+    w = ch.boxers[person].clinch_w[:, None]
+    grips = {  # over the opponent's right shoulder (lead) / under his left arm (rear)
+        "left": opp.neck + apply(opp.R_trunk, np.array([-0.10, -0.13, -0.04]) * opp_body.scale),
+        "right": opp.pelvis + apply(opp.R_trunk, np.array([-0.10, 0.13, 0.20]) * opp_body.scale),
+    }
+    gap = np.linalg.norm(ch.boxers[0].centre_xy - ch.boxers[1].centre_xy, axis=1)
+    tight = 0.5 + 0.5 * minjerk((gap - CLINCH_DISTANCE_M) / 0.8)
+    for side in SIDES:
+        out = 1.0 if side == "left" else -1.0
+        guard = np.tile(GUARD_FIST[side] * s, (len(t), 1))
+        guard[:, 0] *= tight  # at close range the fists are pulled in towards the face
+        target = me.neck + apply(me.R_guard, guard)
+        pole = apply(me.R_guard, np.array([-0.2, 0.35 * out, -1.0]))
+        shoulder = joints[:, J[f"{side}_shoulder"]]
+        punches: list[Punch] = [p for p in ch.punches if p.person == person and p.hand == side]
+        for p in punches:
+            prof = p.profile(t)[:, None]
+            fp = _frame_at(t, p.t0_s + p.out_s)
+            if p.kind == "lead_hook":
+                # Horizontal arc in the facing frame, travelled at arc-length rate ``prof``.
+                local = hook_path(prof[:, 0]) - HOOK_CTRL[0]
+                target = target + apply(me.R_guard, local * s)
+                pole = pole + 2.5 * prof * apply(me.R_guard, np.array([0.0, out, 0.3]))
+            else:
+                aim = opp.head[_frame_at(t, p.t0_s)] - shoulder[fp]
+                dist = float(np.linalg.norm(aim))
+                # Full extension, or stop at the opponent's face when he is closer.
+                reach = float(np.clip(dist - 0.12, 0.3 * body.arm_m, 0.9 * body.arm_m))
+                strike = shoulder[fp] + aim / dist * reach
+                target = target + prof * (strike - target)
+        # Entering/leaving the grip the hand goes around the opponent, not through him.
+        detour = 4.0 * w * (1 - w) * apply(me.R_guard, np.array([0.0, 0.3 * out, 0.05]) * s)
+        target = (1 - w) * target + w * grips[side] + detour
+        pole = (1 - w) * pole + w * apply(me.R_guard, np.array([0.0, out, -0.3]))
+        place_arm(joints, body, side, target, pole)
+    return joints
+
+
+def punch_peak_speeds(
+    joints: np.ndarray, punches: tuple[Punch, ...], person: int, t_s: np.ndarray, fps: float
+) -> list[float]:
+    """Peak wrist speed (m/s, finite differences) within each punch of ``person``."""
+    out = []
+    for p in punches:
+        if p.person != person:
+            continue
+        w = joints[:, J[f"{p.hand}_wrist"]]
+        v = np.linalg.norm(np.diff(w, axis=0), axis=1) * fps
+        sel = (t_s[:-1] >= p.t0_s - 0.02) & (t_s[:-1] <= p.end_s)
+        out.append(float(v[sel].max()) if np.any(sel) else 0.0)
+    return out
