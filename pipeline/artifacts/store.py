@@ -14,6 +14,8 @@ stage) untouched; leftovers ``.tmp-*`` / ``.old-*`` are cleaned on the next open
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import json
 import logging
@@ -106,8 +108,28 @@ class ArtifactStore:
         self.root.mkdir(parents=True, exist_ok=True)
         self._recover()
 
+    @contextlib.contextmanager
+    def _write_lock(self, exclusive: bool) -> Any:
+        """Writers hold a shared lock on ``<session>/.artifacts.lock``; recovery needs it exclusively and is
+        skipped while another process (e.g. a worker, seen from the server) is writing."""
+        with open(self.session_dir / ".artifacts.lock", "a") as f:
+            try:
+                fcntl.flock(f, (fcntl.LOCK_EX | fcntl.LOCK_NB) if exclusive else fcntl.LOCK_SH)
+            except BlockingIOError:
+                yield False
+                return
+            try:
+                yield True
+            finally:
+                fcntl.flock(f, fcntl.LOCK_UN)
+
     def _recover(self) -> None:
         """Finish or undo a swap interrupted by a crash, and drop temp folders."""
+        with self._write_lock(exclusive=True) as free:
+            if free:
+                self._recover_unlocked()
+
+    def _recover_unlocked(self) -> None:
         for p in self.root.iterdir():
             if p.name.startswith(".old-"):
                 stage = p.name[len(".old-") :].rsplit("-", 1)[0]
@@ -155,6 +177,11 @@ class ArtifactStore:
         a ``dict[str, np.ndarray]`` (``<name>.npz``), ``bytes`` or ``str`` (saved
         under ``name`` verbatim, which must carry its extension).
         """
+        with self._write_lock(exclusive=False):
+            return self._write_unlocked(manifest, outputs)
+
+    def _write_unlocked(self, manifest: Manifest, outputs: dict[str, Any]) -> Manifest:
+        """The body of :meth:`write` (caller holds the shared write lock)."""
         stage = manifest.stage
         tmp = self.root / f".tmp-{stage}-{uuid.uuid4().hex[:8]}"
         tmp.mkdir()
@@ -229,6 +256,6 @@ class FileHashCache:
         return digest
 
     def save(self) -> None:
-        tmp = self.cache_path.with_suffix(".tmp")
+        tmp = self.cache_path.with_suffix(f".{os.getpid()}-{uuid.uuid4().hex[:6]}.tmp")  # concurrent savers
         tmp.write_text(json.dumps(self.data))
         tmp.replace(self.cache_path)
