@@ -1,0 +1,47 @@
+from pathlib import Path
+
+import numpy as np
+
+from tests.webui.fixtures import build_session
+from webui.analysis import FrameProblems, ProblemThresholds, compute_problems, compute_series, fill_gaps
+from webui.scene.session_data import load_session_data
+
+
+def test_problem_frames(tmp_path: Path) -> None:
+    d = load_session_data(build_session(tmp_path, n_frames=12, physics=True, low_conf_frame=5))
+    p = compute_problems(d)
+    assert np.flatnonzero(p.low_id_confidence).tolist() == [5]
+    assert np.flatnonzero(p.high_reproj_error).tolist() == [10]
+    # contact at row 3 is between the athletes (0.08 m deep); row 4 is a foot in the floor: ignored
+    assert np.flatnonzero(p.high_penetration).tolist() == [3]
+    assert p.kinds_at(5) == ["identity confidence low"]
+    stricter = compute_problems(d, ProblemThresholds(penetration_m_max=0.1))
+    assert not stricter.high_penetration.any()
+
+
+def test_next_problem_skips_runs_and_wraps() -> None:
+    flags = np.zeros(20, dtype=bool)
+    flags[[3, 4, 5, 12]] = True
+    p = FrameProblems(flags, np.zeros(20, bool), np.zeros(20, bool))
+    assert p.next_after(0) == 3
+    assert p.next_after(3) == 12  # 4 and 5 belong to the same problem
+    assert p.next_after(12) == 3  # wraps around
+    assert p.segments() == [(3, 5), (12, 12)]
+    assert FrameProblems(np.zeros(5, bool), np.zeros(5, bool), np.zeros(5, bool)).next_after(2) is None
+
+
+def test_series(tmp_path: Path) -> None:
+    d = load_session_data(build_session(tmp_path, n_frames=20))
+    s = compute_series(d, "triangulated")
+    assert s is not None
+    # person 0 jabs (the right wrist moves 0.4 m back and forth), person 1 only drifts
+    assert np.nanmax(s.wrist_speed_mps[:, 0]) > 2 * np.nanmax(s.wrist_speed_mps[:, 1])
+    np.testing.assert_allclose(np.nanmedian(s.distance_m), 2.0, atol=0.05)
+    assert np.isnan(s.wrist_speed_mps[0]).all()  # no speed at the first frame
+    assert s.reproj_err_px[18, 1] == 30.0 and s.reproj_err_px[0, 0] == 2.0
+    assert compute_series(d, "fitted") is None
+
+
+def test_fill_gaps() -> None:
+    np.testing.assert_allclose(fill_gaps(np.array([np.nan, 1.0, np.nan, 3.0])), [1.0, 1.0, 2.0, 3.0])
+    np.testing.assert_allclose(fill_gaps(np.array([np.nan, np.nan])), [0.0, 0.0])

@@ -1,0 +1,193 @@
+"""Per-frame diagnostics for the timeline and the plots (pure numpy).
+
+Problem frames are where an analyst should look first: low identity confidence
+(association), high reprojection error (triangulation) and deep inter-person
+penetration (physics).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.schema.keypoints3d import Keypoints3D
+from webui.scene.session_data import SessionData
+
+
+@dataclass(frozen=True)
+class ProblemThresholds:
+    """When a frame is flagged."""
+
+    id_confidence_min: float = 0.5
+    """A detection associated with confidence below this flags its frame."""
+    reproj_err_px_max: float = 15.0
+    """Mean reprojection error of a person (over valid joints) above this flags the frame."""
+    penetration_m_max: float = 0.03
+    """Penetration depth between two persons' geoms above this flags the frame."""
+
+
+@dataclass(frozen=True)
+class FrameProblems:
+    """(frames,) bool flags per kind of problem."""
+
+    low_id_confidence: np.ndarray
+    high_reproj_error: np.ndarray
+    high_penetration: np.ndarray
+
+    @property
+    def any(self) -> np.ndarray:
+        return self.low_id_confidence | self.high_reproj_error | self.high_penetration
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.low_id_confidence.shape[0])
+
+    def kinds_at(self, frame: int) -> list[str]:
+        out = []
+        if self.low_id_confidence[frame]:
+            out.append("identity confidence low")
+        if self.high_reproj_error[frame]:
+            out.append("reprojection error high")
+        if self.high_penetration[frame]:
+            out.append("penetration high")
+        return out
+
+    def next_after(self, frame: int) -> int | None:
+        """First flagged frame strictly after ``frame``, wrapping around; None when nothing is flagged.
+
+        Consecutive flagged frames count as one problem: the search skips to the end of the
+        run containing ``frame`` first, so repeated clicks visit each problem once.
+        """
+        flags = self.any
+        if not flags.any():
+            return None
+        n = flags.shape[0]
+        f = int(frame)
+        while 0 <= f < n and flags[f]:
+            f += 1
+        order = np.r_[np.arange(f, n), np.arange(0, min(f, n))]
+        hits = order[flags[order]]
+        return int(hits[0]) if hits.size else None
+
+    def segments(self) -> list[tuple[int, int]]:
+        """Inclusive (start, end) runs of flagged frames."""
+        flags = self.any.astype(np.int8)
+        d = np.diff(np.r_[0, flags, 0])
+        starts = np.flatnonzero(d == 1)
+        ends = np.flatnonzero(d == -1) - 1
+        return list(zip(starts.tolist(), ends.tolist(), strict=True))
+
+
+def per_frame_reproj_error(kp: Keypoints3D, n_frames: int) -> np.ndarray:
+    """(frames, persons) mean reprojection error over valid joints, NaN where unknown."""
+    err = np.where(kp.valid & np.isfinite(kp.reproj_err_px), kp.reproj_err_px, np.nan)
+    out = np.full((n_frames, kp.n_persons), np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows are expected (person absent)
+        m = np.nanmean(err, axis=2)
+    keep = kp.frame_indices < n_frames
+    out[kp.frame_indices[keep]] = m[keep]
+    return out
+
+
+def compute_problems(data: SessionData, th: ProblemThresholds = ProblemThresholds()) -> FrameProblems:
+    n = data.n_frames
+    low = np.zeros(n, dtype=bool)
+    if data.association is not None and data.tracks is not None:
+        sel = (data.association.confidence < th.id_confidence_min) & (data.tracks.track_id >= 0)
+        # A detection attributed to nobody with low confidence is a bystander, not a doubt.
+        sel &= data.association.person_of_det >= 0
+        low[np.unique(data.tracks.frame[sel])] = True
+    high = np.zeros(n, dtype=bool)
+    kp = data.keypoints.get("triangulated")
+    if kp is not None:
+        e = per_frame_reproj_error(kp, n)
+        with np.errstate(invalid="ignore"):
+            high = np.any(e > th.reproj_err_px_max, axis=1)
+    pen = np.zeros(n, dtype=bool)
+    ph = data.physics
+    if ph is not None and ph.contact_frame.size:
+        between = (ph.contact_person[:, 0] >= 0) & (ph.contact_person[:, 1] >= 0)
+        between &= ph.contact_person[:, 0] != ph.contact_person[:, 1]
+        deep = between & (ph.contact_depth_m > th.penetration_m_max)
+        rows = ph.contact_frame[deep]
+        rows = rows[rows < ph.frame_indices.shape[0]]
+        frames = ph.frame_indices[rows]
+        pen[frames[frames < n]] = True
+    return FrameProblems(low, high, pen)
+
+
+@dataclass(frozen=True)
+class PlotSeries:
+    """Per-frame curves for the plots; NaN where unknown.
+
+    Fields:
+        frames: (frames,) frame indices.
+        time_s: (frames,) seconds.
+        person_ids: (persons,) ids matching the columns below.
+        wrist_speed_mps: (frames, persons) max of both wrists' speeds, m/s.
+        distance_m: (frames,) distance between the first two persons' hip centres, m.
+        reproj_err_px: (frames, persons) mean reprojection error (triangulation), px.
+    """
+
+    frames: np.ndarray
+    time_s: np.ndarray
+    person_ids: np.ndarray
+    wrist_speed_mps: np.ndarray
+    distance_m: np.ndarray
+    reproj_err_px: np.ndarray
+
+
+def _dense(kp: Keypoints3D, n_frames: int, joint: str) -> np.ndarray:
+    """(frames, persons, 3) positions of ``joint`` on the full timeline, NaN where invalid."""
+    out = np.full((n_frames, kp.n_persons, 3), np.nan)
+    if joint not in kp.joint_names:
+        return out
+    j = kp.joint_names.index(joint)
+    x = np.where(kp.valid[:, :, j, None], kp.xyz_m[:, :, j], np.nan)
+    keep = kp.frame_indices < n_frames
+    out[kp.frame_indices[keep]] = x[keep]
+    return out
+
+
+def compute_series(data: SessionData, source: str) -> PlotSeries | None:
+    """Curves of keypoint source ``source`` (None when that source is absent)."""
+    kp = data.keypoints.get(source)
+    if kp is None:
+        return None
+    n = data.n_frames
+    fps = data.fps
+    speeds = []
+    for w in ("left_wrist", "right_wrist"):
+        x = _dense(kp, n, w)
+        v = np.full((n, kp.n_persons), np.nan)
+        v[1:] = np.linalg.norm(np.diff(x, axis=0), axis=-1) * fps
+        speeds.append(v)
+    with np.errstate(invalid="ignore"):
+        wrist = np.fmax(speeds[0], speeds[1])
+    hips = (_dense(kp, n, "left_hip") + _dense(kp, n, "right_hip")) / 2
+    dist = np.full(n, np.nan)
+    if kp.n_persons >= 2:
+        dist = np.linalg.norm(hips[:, 0, :2] - hips[:, 1, :2], axis=-1)
+    tri = data.keypoints.get("triangulated")
+    reproj = np.full((n, kp.n_persons), np.nan)
+    if tri is not None:
+        e = per_frame_reproj_error(tri, n)
+        for i, pid in enumerate(kp.person_ids):
+            hit = np.flatnonzero(tri.person_ids == pid)
+            if hit.size:
+                reproj[:, i] = e[:, hit[0]]
+    frames = np.arange(n)
+    return PlotSeries(frames, frames / fps, kp.person_ids.copy(), wrist, dist, reproj)
+
+
+def fill_gaps(y: np.ndarray) -> np.ndarray:
+    """Linear interpolation over NaN gaps for display (all-NaN -> zeros)."""
+    y = np.asarray(y, dtype=np.float64)
+    ok = np.isfinite(y)
+    if not ok.any():
+        return np.zeros_like(y)
+    x = np.arange(y.shape[0])
+    return np.interp(x, x[ok], y[ok])

@@ -1,0 +1,62 @@
+"""Per-athlete plots (uPlot): wrist speed, distance between the athletes, reprojection error."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import viser
+import viser.uplot as vup
+
+from webui.analysis import PlotSeries, fill_gaps
+from webui.colors import IdentityPalette
+
+
+@dataclass
+class PlotsHandles:
+    wrist_speed: viser.GuiUplotHandle
+    distance: viser.GuiUplotHandle
+    reproj: viser.GuiUplotHandle
+    note: viser.GuiMarkdownHandle
+
+
+def _series(names: list[str], colors: list[str], unit: str) -> tuple[vup.Series, ...]:
+    out: list[vup.Series] = [vup.Series(label="time (s)")]
+    for n, c in zip(names, colors, strict=True):
+        out.append(vup.Series(label=f"{n} ({unit})", stroke=c, width=2))
+    return tuple(out)
+
+
+def _curves(s: PlotSeries | None, palette: IdentityPalette) -> dict[str, tuple[tuple[np.ndarray, ...], tuple[vup.Series, ...]]]:
+    if s is None or s.frames.size < 2:
+        t = np.array([0.0, 1.0])
+        z = np.zeros(2)
+        return {k: ((t, z), _series(["no data"], ["#888888"], u)) for k, u in (("w", "m/s"), ("d", "m"), ("r", "px"))}
+    pids = [int(p) for p in s.person_ids]
+    names = [palette.name(p) for p in pids]
+    cols = [ident.color_hex if (ident := palette.get(p)) is not None else "#888888" for p in pids]
+    w = tuple(fill_gaps(s.wrist_speed_mps[:, i]) for i in range(len(pids)))
+    r = tuple(fill_gaps(s.reproj_err_px[:, i]) for i in range(len(pids)))
+    return {
+        "w": ((s.time_s, *w), _series(names, cols, "m/s")),
+        "d": ((s.time_s, fill_gaps(s.distance_m)), _series(["distance"], ["#444444"], "m")),
+        "r": ((s.time_s, *r), _series(names, cols, "px")),
+    }
+
+
+def make_plots(server: viser.ViserServer, s: PlotSeries | None, palette: IdentityPalette) -> PlotsHandles:
+    c = _curves(s, palette)
+    # x is seconds from the start of the bout, not a UNIX timestamp.
+    sc = {"x": vup.Scale(time=False)}
+    wrist = server.gui.add_uplot(c["w"][0], c["w"][1], title="Wrist speed", aspect=2.0, scales=sc)
+    dist = server.gui.add_uplot(c["d"][0], c["d"][1], title="Distance between athletes", aspect=2.0, scales=sc)
+    reproj = server.gui.add_uplot(c["r"][0], c["r"][1], title="Reprojection error (triangulated)", aspect=2.0, scales=sc)
+    note = server.gui.add_markdown("Gaps (frames without an estimate) are interpolated for display.")
+    return PlotsHandles(wrist, dist, reproj, note)
+
+
+def update_plots(h: PlotsHandles, s: PlotSeries | None, palette: IdentityPalette) -> None:
+    c = _curves(s, palette)
+    for handle, key in ((h.wrist_speed, "w"), (h.distance, "d"), (h.reproj, "r")):
+        handle.series = c[key][1]
+        handle.data = c[key][0]

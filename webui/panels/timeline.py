@@ -1,0 +1,53 @@
+"""Timeline: frame slider with problem marks, play/pause, speed and "next problem"."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import viser
+from viser._messages import GuiSliderMark
+
+from webui.analysis import FrameProblems
+
+SPEEDS: tuple[str, ...] = ("0.25x", "0.5x", "1x", "2x")
+MAX_MARKS = 40
+
+
+@dataclass
+class TimelineHandles:
+    frame: viser.GuiSliderHandle[int]
+    play: viser.GuiCheckboxHandle
+    speed: viser.GuiDropdownHandle[str]
+    next_problem: viser.GuiButtonHandle
+    info: viser.GuiMarkdownHandle
+
+    @property
+    def speed_factor(self) -> float:
+        return float(self.speed.value.rstrip("x"))
+
+
+def problem_marks(problems: FrameProblems) -> tuple[tuple[int, str], ...]:
+    """Slider marks at the start of each run of flagged frames (at most ``MAX_MARKS``)."""
+    segs = problems.segments()
+    if len(segs) > MAX_MARKS:
+        step = len(segs) / MAX_MARKS
+        segs = [segs[int(i * step)] for i in range(MAX_MARKS)]
+    return tuple((int(s), "!") for s, _ in segs)
+
+
+def make_timeline(server: viser.ViserServer, n_frames: int) -> TimelineHandles:
+    frame = server.gui.add_slider("Frame", min=0, max=max(1, n_frames - 1), step=1, initial_value=0)
+    play = server.gui.add_checkbox("Play", initial_value=False)
+    speed = server.gui.add_dropdown("Speed", SPEEDS, initial_value="1x")
+    next_problem = server.gui.add_button("Next problem", hint="Jump to the next frame flagged as suspicious")
+    info = server.gui.add_markdown("")
+    return TimelineHandles(frame, play, speed, next_problem, info)
+
+
+def set_problems(h: TimelineHandles, problems: FrameProblems, n_frames: int) -> None:
+    h.frame.max = max(1, n_frames - 1)
+    marks = problem_marks(problems)
+    # viser 1.1 exposes marks only at creation (``add_slider(marks=...)``); the prop itself is
+    # assignable and synced like every other, so results reloaded later update it here.
+    h.frame._marks = tuple(GuiSliderMark(value=float(v), label=lab) for v, lab in marks) or None
+    h.next_problem.disabled = not bool(problems.any.any())
