@@ -1,0 +1,1 @@
+"""REST API: routers per resource (``server.api.routes``), dependencies in ``deps``."""

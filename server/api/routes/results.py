@@ -1,0 +1,104 @@
+"""Routes: results: 3D keypoints download (JSON/NPZ), raw artifacts, metrics."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, HTTPException, Query, status
+from fastapi.responses import FileResponse, Response
+
+from server import crud
+from server.api.deps import CurrentUser, SessionDep, bout_dir, get_bout_or_404
+from server.storage import safe_filename
+
+router = APIRouter(prefix="/sessions/{session_id}", tags=["results"])
+
+# source -> (stage, artifact) of a Keypoints3D, as ``cornerman export`` reads them.
+KEYPOINTS3D: dict[str, tuple[str, str]] = {
+    "raw": ("triangulate", "raw"),
+    "triangulation": ("triangulate", "raw"),
+    "filtered": ("triangulate", "keypoints3d"),
+    "fit": ("fit", "keypoints3d"),
+    "physics": ("physics", "keypoints3d"),
+}
+LATEST_FIRST: tuple[str, ...] = ("physics", "fit", "filtered")
+Source = Literal["latest", "raw", "triangulation", "filtered", "fit", "physics"]
+
+
+def find_keypoints3d(session_dir: Path, source: str) -> tuple[Any, str]:
+    """The ``Keypoints3D`` of ``source`` (``latest``: physics, else fit, else filtered) and the
+    source chosen. ``LookupError`` when the stage has not produced it yet."""
+    from pipeline.artifacts import ArtifactStore
+    from pipeline.schema.keypoints3d import Keypoints3D
+
+    store = ArtifactStore(session_dir)
+    candidates = LATEST_FIRST if source == "latest" else (source,)
+    for cand in candidates:
+        stage, name = KEYPOINTS3D[cand]
+        if store.has(stage, f"{name}.npz"):
+            return store.load(stage, name, Keypoints3D), cand
+    raise LookupError(f"no 3D keypoints ({', '.join(candidates)}) yet: run the session's stages first")
+
+
+@router.get("/results/keypoints3d")
+def download_keypoints3d(
+    db: SessionDep,
+    _: CurrentUser,
+    session_id: int,
+    source: Annotated[Source, Query(description="latest = physics, else fit, else filtered")] = "latest",
+    format: Annotated[Literal["json", "npz"], Query()] = "json",
+) -> Response:
+    """3D keypoints of every athlete (metres, world z-up) as the README's JSON or an NPZ."""
+    from pipeline.io.export import export_keypoints3d
+
+    bout = get_bout_or_404(db, session_id)
+    try:
+        kp, chosen = find_keypoints3d(bout_dir(bout), source)
+    except LookupError as e:
+        raise HTTPException(status_code=status.HTTP_404_NOT_FOUND, detail=str(e)) from e
+    names = {i.person_id: i.name for i in crud.list_identities(db, bout_id=session_id)}
+    data = export_keypoints3d(kp, format, names)
+    media = "application/json" if format == "json" else "application/octet-stream"
+    fname = f"session{session_id}_keypoints3d_{chosen}.{format}"
+    return Response(content=data, media_type=media,
+                    headers={"Content-Disposition": f'attachment; filename="{fname}"', "X-Cornerman-Source": chosen})
+
+
+@router.get("/results/{stage}/{artifact}")
+def download_artifact(db: SessionDep, _: CurrentUser, session_id: int, stage: str, artifact: str) -> FileResponse:
+    """A raw artifact file of a complete stage (one listed in its manifest, or the manifest)."""
+    from pipeline.artifacts import ArtifactStore
+    from pipeline.runner.registry import STAGE_ORDER
+
+    if stage not in STAGE_ORDER:
+        raise HTTPException(status_code=status.HTTP_404_NOT_FOUND, detail=f"unknown stage {stage!r}; known: {list(STAGE_ORDER)}")
+    try:
+        artifact = safe_filename(artifact, "artifact name")
+    except ValueError as e:
+        raise HTTPException(status_code=status.HTTP_400_BAD_REQUEST, detail=str(e)) from e
+    bout = get_bout_or_404(db, session_id)
+    store = ArtifactStore(bout_dir(bout))
+    m = store.manifest(stage)
+    if m is None:
+        raise HTTPException(status_code=status.HTTP_404_NOT_FOUND, detail=f"stage {stage!r} has no complete artifacts")
+    if artifact != "manifest.json" and artifact not in m.outputs:
+        raise HTTPException(status_code=status.HTTP_404_NOT_FOUND,
+                            detail=f"stage {stage!r} has no artifact {artifact!r}; it has {sorted(m.outputs)}")
+    return FileResponse(store.stage_dir(stage) / artifact, filename=f"{stage}_{artifact}")
+
+
+@router.get("/metrics")
+def metrics(db: SessionDep, _: CurrentUser, session_id: int) -> dict[str, Any]:
+    """``{stage: manifest.metrics}`` for each stage with complete artifacts."""
+    from pipeline.artifacts import ArtifactStore
+    from pipeline.runner.registry import STAGE_ORDER
+
+    bout = get_bout_or_404(db, session_id)
+    store = ArtifactStore(bout_dir(bout))
+    out: dict[str, Any] = {}
+    for stage in STAGE_ORDER:
+        m = store.manifest(stage)
+        if m is not None:
+            out[stage] = {**m.metrics, "duration_s": round(m.duration_s, 3)}
+    return out

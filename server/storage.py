@@ -1,0 +1,170 @@
+"""Session folders on disk: safe names, allowed roots, session.json, annotations.json.
+
+Only the server writes under ``<home>/sessions``. A session made from a server-side
+folder gets its own folder there (``session.json`` with absolute input paths,
+``annotations.json``, ``artifacts/``); the source folder is only read.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import logging
+import re
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from server.core.config import Settings
+
+log = logging.getLogger(__name__)
+
+SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm")
+CALIB_SUFFIXES = (".toml", ".txt", ".json")
+
+
+class PathNotAllowed(ValueError):
+    """A server-side path outside every allowed root (the API answers 403)."""
+
+
+def safe_filename(name: str | None, what: str = "file name") -> str:
+    """An uploaded file's name, accepted only as a plain, short, dot-free-prefix basename."""
+    if not name:
+        raise ValueError(f"{what}: missing")
+    if "/" in name or "\\" in name or name in (".", "..") or not SAFE_NAME.match(name):
+        raise ValueError(f"{what} {name!r} is not allowed (use letters, digits, '.', '_', '-'; no paths)")
+    return name
+
+
+def resolve_allowed(path: str | Path, settings: Settings) -> Path:
+    """Resolve ``path`` (symlinks followed) and require it under an allowed root."""
+    p = Path(path).expanduser()
+    if not p.is_absolute():
+        raise PathNotAllowed(f"server-side path must be absolute, got {str(path)!r}")
+    real = p.resolve()
+    for root in settings.resolved_roots():
+        if real == root or real.is_relative_to(root):
+            return real
+    raise PathNotAllowed(f"{str(path)!r} is outside the allowed roots {[str(r) for r in settings.resolved_roots()]}")
+
+
+def new_session_dir(settings: Settings) -> Path:
+    d = settings.sessions_dir / f"s-{uuid.uuid4().hex[:12]}"
+    d.mkdir(parents=True)
+    return d
+
+
+def _absolutize(value: str, base: Path, settings: Settings) -> str:
+    if not value:
+        return value
+    p = Path(value)
+    return str(resolve_allowed(p if p.is_absolute() else base / p, settings))
+
+
+def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | None) -> Any:
+    """Write ``dest/session.json`` describing the inputs of server-side folder ``src``.
+
+    ``src`` holds a ``session.json`` (its relative paths are made absolute and must stay
+    under an allowed root), or inputs: one calibration file (``*.toml``, ``*.qca.txt``)
+    and videos (``<camera>.mp4|avi|mov|mkv|webm``). Returns the ``SessionConfig``.
+    """
+    from pipeline.schema.session import SessionConfig
+
+    if not src.is_dir():
+        raise ValueError(f"{src}: not a folder")
+    if (src / "session.json").exists():
+        cfg = SessionConfig.load(src)
+        cfg = replace(
+            cfg,
+            calibration=_absolutize(cfg.calibration, src, settings),
+            videos={k: _absolutize(v, src, settings) for k, v in cfg.videos.items()},
+            keypoints={k: _absolutize(v, src, settings) for k, v in cfg.keypoints.items()},
+            tracks=_absolutize(cfg.tracks, src, settings),
+            ground_truth=_absolutize(cfg.ground_truth, src, settings),
+            ground_truth_labels=_absolutize(cfg.ground_truth_labels, src, settings),
+        )
+        if (src / "annotations.json").exists() and not (dest / "annotations.json").exists():
+            (dest / "annotations.json").write_bytes((src / "annotations.json").read_bytes())
+    else:
+        files = sorted(p for p in src.iterdir() if p.is_file())
+        calibs = [p for p in files if p.suffix.lower() == ".toml" or p.name.lower().endswith(".qca.txt")]
+        videos = {p.stem: str(p) for p in files if p.suffix.lower() in VIDEO_SUFFIXES}
+        if len(calibs) != 1 or not videos:
+            raise ValueError(
+                f"{src}: no session.json, and not an inputs folder (needs exactly one calibration *.toml/*.qca.txt, "
+                f"found {len(calibs)}, and at least one video, found {len(videos)})"
+            )
+        cfg = SessionConfig(name=name or src.name, source="video", calibration=str(calibs[0]), videos=videos)
+    if name:
+        cfg = replace(cfg, name=name)
+    cfg.save(dest)
+    return cfg
+
+
+def session_meta(session_dir: Path) -> dict[str, Any]:
+    """``name, n_cameras, cameras, fps, athletes`` of a session folder (best effort on the calibration:
+    a malformed one is reported by the job that reads it, not here)."""
+    from pipeline.schema.session import SessionConfig
+
+    cfg = SessionConfig.load(session_dir)
+    cams = list(cfg.videos or cfg.keypoints)
+    fps = float(cfg.fps)
+    try:
+        from pipeline.io.calibration import load_calibration
+
+        calib = Path(cfg.calibration)
+        rig = load_calibration(calib if calib.is_absolute() else session_dir / calib)
+        cams, fps = list(rig.names), float(cfg.fps or rig.fps)
+    except (ValueError, OSError, KeyError, TypeError) as e:
+        log.warning("%s: calibration not readable yet: %s", session_dir, e)
+    return {"name": cfg.name, "n_cameras": len(cams), "cameras": cams, "fps": fps, "athletes": list(cfg.athletes),
+            "auto_rerun": bool(cfg.auto_rerun)}
+
+
+@contextmanager
+def session_lock(session_dir: Path) -> Iterator[None]:
+    """Exclusive lock on a session's overlay files across processes."""
+    with open(session_dir / ".server.lock", "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def write_annotations_file(session_dir: Path, payloads: list[dict[str, Any]]) -> None:
+    """Rewrite ``annotations.json`` with the active edits (validated by the pipeline schema)."""
+    from pipeline.schema.annotations import annotation_from_dict, save_annotations
+
+    save_annotations(session_dir / "annotations.json", [annotation_from_dict(p) for p in payloads])
+
+
+def enabled_stage_names(session_dir: Path) -> list[str]:
+    """The session's stages in pipeline order (``session.json`` ``stages``, or every known stage)."""
+    from pipeline.runner.registry import STAGE_ORDER
+    from pipeline.schema.session import SessionConfig
+
+    cfg = SessionConfig.load(session_dir)
+    wanted = cfg.stages or STAGE_ORDER
+    return [s for s in STAGE_ORDER if s in wanted]
+
+
+def stale_from(session_dir: Path, kind: str) -> str | None:
+    """First enabled stage an edit of ``kind`` makes stale (None: no enabled stage consumes it)."""
+    from pipeline.runner.registry import STAGE_ORDER
+    from pipeline.schema.annotations import CONSUMED_BY
+
+    consumer = CONSUMED_BY[kind]
+    first = STAGE_ORDER.index(consumer)
+    for s in enabled_stage_names(session_dir):
+        if STAGE_ORDER.index(s) >= first:
+            return s
+    return None
+
+
+def read_json(path: Path) -> Any:
+    return json.loads(path.read_text())

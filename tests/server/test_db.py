@@ -1,0 +1,91 @@
+"""SQLite setup: WAL + foreign keys, schema-version check, atomic claims."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from sqlalchemy import text
+from sqlmodel import Session
+
+from server import crud
+from server.db import SCHEMA_VERSION, check_integrity, init_db, make_engine
+from server.models import Bout, Job, JobCreate
+
+
+def test_wal_foreign_keys_and_version(tmp_path: Path) -> None:
+    engine = make_engine(tmp_path / "c.db")
+    init_db(engine)
+    with engine.connect() as conn:
+        assert conn.execute(text("PRAGMA journal_mode")).scalar() == "wal"
+        assert conn.execute(text("PRAGMA foreign_keys")).scalar() == 1
+        assert conn.execute(text("PRAGMA user_version")).scalar() == SCHEMA_VERSION
+    init_db(engine)  # idempotent on an existing database
+    assert check_integrity(engine)["integrity"] == "ok"
+
+
+def test_newer_schema_is_refused(tmp_path: Path) -> None:
+    engine = make_engine(tmp_path / "c.db")
+    init_db(engine)
+    with engine.begin() as conn:
+        conn.exec_driver_sql(f"PRAGMA user_version={SCHEMA_VERSION + 1}")
+    with pytest.raises(ValueError, match="newer than this build"):
+        init_db(make_engine(tmp_path / "c.db"))
+
+
+def test_delete_session_cascades(tmp_path: Path) -> None:
+    engine = make_engine(tmp_path / "c.db")
+    init_db(engine)
+    with Session(engine, expire_on_commit=False) as db:
+        b = crud.create_bout(db, bout=Bout(name="b", folder=str(tmp_path), athletes=["Red", "Blue"]))
+        assert b.id is not None
+        crud.create_job(db, job_in=JobCreate(session_id=b.id), requested_by="t")
+        crud.add_annotation(db, bout_id=b.id, payload={"kind": "swap_identities", "frame": 3, "person_a": 0,
+                                                        "person_b": 1, "view": ""}, author="t")
+        assert len(crud.list_identities(db, bout_id=b.id)) == 2
+        crud.delete_bout(db, bout=b)
+        for table in ("job", "annotation", "identity"):
+            assert db.execute(text(f"SELECT count(*) FROM {table}")).scalar() == 0, table
+    assert check_integrity(engine)["foreign_key_violations"] == 0
+
+
+def test_claims_are_exclusive_and_one_job_per_session(tmp_path: Path) -> None:
+    engine = make_engine(tmp_path / "c.db")
+    init_db(engine)
+    with Session(engine, expire_on_commit=False) as db:
+        b1 = crud.create_bout(db, bout=Bout(name="b1", folder=str(tmp_path)))
+        b2 = crud.create_bout(db, bout=Bout(name="b2", folder=str(tmp_path)))
+        assert b1.id and b2.id
+        j1 = crud.create_job(db, job_in=JobCreate(session_id=b1.id), requested_by="t")
+        j2 = crud.create_job(db, job_in=JobCreate(session_id=b1.id), requested_by="t")
+        j3 = crud.create_job(db, job_in=JobCreate(session_id=b2.id), requested_by="t")
+        a = crud.claim_job(db, worker_id="w1")
+        b = crud.claim_job(db, worker_id="w2")
+        c = crud.claim_job(db, worker_id="w3")
+        assert a is not None and b is not None
+        assert (a.id, b.id) == (j1.id, j3.id)  # j2 waits: its session already has a running job
+        assert c is None
+        assert crud.finish_job(db, job_id=a.id, worker_id="w1", status="done")  # type: ignore[arg-type]
+        assert not crud.finish_job(db, job_id=b.id, worker_id="w1", status="done")  # type: ignore[arg-type]  (not its job)
+        d = crud.claim_job(db, worker_id="w3")
+        assert d is not None and d.id == j2.id
+
+
+def test_lost_job_is_requeued_then_failed_after_max_attempts(tmp_path: Path) -> None:
+    engine = make_engine(tmp_path / "c.db")
+    init_db(engine)
+    with Session(engine, expire_on_commit=False) as db:
+        bout = crud.create_bout(db, bout=Bout(name="b", folder=str(tmp_path)))
+        assert bout.id is not None
+        job = crud.create_job(db, job_in=JobCreate(session_id=bout.id), requested_by="t")
+        for attempt in (1, 2):
+            claimed = crud.claim_job(db, worker_id=f"w{attempt}")
+            assert claimed is not None and claimed.attempts == attempt
+            assert crud.requeue_lost_jobs(db, timeout_s=60, max_attempts=2) == []  # heartbeat is fresh
+            db.execute(text("UPDATE job SET heartbeat_unix_s = 0"))
+            db.commit()
+            assert crud.requeue_lost_jobs(db, timeout_s=60, max_attempts=2) == [job.id]
+        final = db.get(Job, job.id)
+        assert final is not None
+        db.refresh(final)
+        assert final.status == "failed" and "died 2 times" in (final.error or "")
