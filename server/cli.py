@@ -64,31 +64,46 @@ def _default_tokens(settings: Settings, fresh: bool) -> dict[str, str]:
 
 
 def register_demo(settings: Settings, demo_session: Path) -> int:
-    """Register the demo session folder (once) and queue a job for it; returns the session id."""
-    from server.storage import new_session_dir, session_from_folder, session_meta
+    """Register the demo session folder in place (once); queue a job only if a stage is not fresh.
+
+    ``cornerman demo`` has already run the pipeline there, so copying the folder would
+    only make the worker compute everything again.
+    """
+    from pipeline.runner import stage_status
+    from server.storage import session_meta
 
     demo_session = Path(demo_session).resolve()
     engine = make_engine(settings.db_path)
     init_db(engine)
     with Session(engine, expire_on_commit=False) as db:
-        for b in db.exec(select(Bout)).all():
-            if b.created_by == f"demo:{demo_session}":
-                assert b.id is not None
-                return b.id
-        dest = new_session_dir(settings)
-        if not any(demo_session.is_relative_to(r) for r in settings.resolved_roots()):
-            settings = settings.model_copy(update={"allowed_roots": [*settings.allowed_roots, demo_session]})
-        session_from_folder(demo_session, dest, settings, None)
-        meta = session_meta(dest)
-        bout = crud.create_bout(db, bout=Bout(name=meta["name"], folder=str(dest), n_cameras=meta["n_cameras"],
-                                              cameras=meta["cameras"], fps=meta["fps"], athletes=meta["athletes"],
-                                              auto_rerun=meta["auto_rerun"], created_by=f"demo:{demo_session}"))
+        bout = next((b for b in db.exec(select(Bout)).all() if b.created_by == f"demo:{demo_session}"), None)
+        if bout is None:
+            meta = session_meta(demo_session)
+            bout = crud.create_bout(db, bout=Bout(name=meta["name"], folder=str(demo_session), n_cameras=meta["n_cameras"],
+                                                  cameras=meta["cameras"], fps=meta["fps"], athletes=meta["athletes"],
+                                                  auto_rerun=meta["auto_rerun"], created_by=f"demo:{demo_session}"))
         assert bout.id is not None
-        crud.create_job(db, job_in=JobCreate(session_id=bout.id), requested_by="serve", reason="demo session")
+        if any(st != "fresh" for st in stage_status(demo_session).values()):
+            crud.create_job(db, job_in=JobCreate(session_id=bout.id), requested_by="serve", reason="demo session")
         return bout.id
 
 
+def _die_with_parent() -> None:
+    """Linux: get SIGTERM when the ``serve`` process dies, even by a signal that skips its cleanup
+    (uvicorn re-raises SIGTERM after shutdown, so ``serve``'s ``finally`` does not run)."""
+    try:
+        import ctypes
+        import signal
+
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        PR_SET_PDEATHSIG = 1
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):
+        log.debug("PR_SET_PDEATHSIG unavailable; workers outlive a killed server")
+
+
 def _worker_entry(home: str, executor: str, ray_address: str | None) -> None:
+    _die_with_parent()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s worker %(name)s: %(message)s")
     os.environ["CORNERMAN_HOME"] = home
     from server.jobs.worker import run_worker
@@ -132,7 +147,7 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1, home: Pat
     if not tokens:
         console.print("  tokens: existing users kept; `cornerman serve --print-tokens` or `cornerman user create NAME --role ROLE`")
     if demo_id is not None:
-        console.print(f"  demo session id {demo_id} (job queued)")
+        console.print(f"  demo     session id {demo_id}: {base}/?token={tokens.get('annotator', '<annotator token>')}", soft_wrap=True)
     procs = start_workers(settings, workers)
     console.print(f"  workers  {len(procs)} started (pids {[p.pid for p in procs]})")
     try:

@@ -85,7 +85,7 @@ def demo(
         return
     from server.cli import serve as serve_app
 
-    serve_app(host=host, port=port, workers=1, home=_home(), demo_session=session)
+    serve_app(host=host, port=port, workers=1, home=_home(), demo_session=session, open_tokens_print=True)
 
 
 @app.command("run")
@@ -261,13 +261,37 @@ def serve(
     port: Annotated[int, typer.Option(help="API port.")] = 8000,
     workers: Annotated[int, typer.Option(help="Worker processes to start with the API.")] = 1,
     home: Annotated[Path | None, typer.Option(help="Server home (database + sessions); env CORNERMAN_HOME.")] = None,
+    print_tokens: Annotated[bool, typer.Option("--print-tokens", help="Issue and print fresh tokens for admin/annotator/coach.")] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
 ) -> None:
     """Start the API server (FastAPI + uvicorn) and job workers."""
     _setup_logging(verbose)
     from server.cli import serve as serve_app
 
-    serve_app(host=host, port=port, workers=workers, home=home or _home(), demo_session=None)
+    serve_app(host=host, port=port, workers=workers, home=home or _home(), demo_session=None, open_tokens_print=print_tokens)
+
+
+user_app = typer.Typer(help="Server users and API tokens.", no_args_is_help=True)
+app.add_typer(user_app, name="user")
+
+
+@user_app.command("create")
+def user_create(
+    name: Annotated[str, typer.Argument(help="User name.")],
+    role: Annotated[str, typer.Option(help="coach (read), annotator (read + annotate) or admin.")] = "coach",
+    home: Annotated[Path | None, typer.Option(help="Server home; env CORNERMAN_HOME.")] = None,
+) -> None:
+    """Create a user (if needed) and print a new API token for it."""
+    from server.cli import create_user
+
+    if role not in ("coach", "annotator", "admin"):
+        _fail(f"--role must be coach, annotator or admin, got {role!r}")
+    try:
+        token = create_user(name, role, home=home or _home())
+    except ValueError as e:
+        _fail(str(e))
+        return
+    console.print(f"user {name} ({role}) token: {token}", soft_wrap=True)
 
 
 @app.command()

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
-from conftest import auth, make_bout, run_jobs
+from tests.server.conftest import auth, make_bout, run_jobs
 from fastapi.testclient import TestClient
 
 from server.core.config import Settings

@@ -6,7 +6,7 @@ import os
 from pathlib import Path
 
 import pytest
-from conftest import auth, make_bout
+from tests.server.conftest import auth, make_bout
 from fastapi.testclient import TestClient
 
 from server.core.config import Settings

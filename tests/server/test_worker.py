@@ -6,7 +6,7 @@ import threading
 import time
 from pathlib import Path
 
-from conftest import auth, make_bout
+from tests.server.conftest import auth, make_bout
 from fastapi.testclient import TestClient
 
 from server.core.config import Settings

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from mv_fixtures import Scene, make_scene
+from tests.stages.mv_fixtures import Scene, make_scene
 
 from pipeline.evaluate.metrics import identity_accuracy
 from pipeline.schema import AssignIdentity, MarkInvalid, SwapIdentities

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mv_fixtures import make_scene
+from tests.stages.mv_fixtures import make_scene
 
 from pipeline.evaluate.metrics import mpjpe, pcp, reprojection_error
 from pipeline.schema import Association
