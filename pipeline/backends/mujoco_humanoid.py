@@ -1,0 +1,332 @@
+"""MJCF generator: one articulated humanoid per athlete, all in one MuJoCo scene.
+
+Each person ``pid`` becomes a subtree ``p{pid}_pelvis`` with a free root joint
+``p{pid}_root``, hinge joints ``p{pid}_<joint>`` (three per ball joint, anatomical
+ranges), collision geoms (capsules/spheres/box soles, density 985 kg/m³) and one
+site per tracked keypoint ``p{pid}_<keypoint>``.
+
+Actuation (chosen by a stability test, see ``tests/backends/test_humanoid.py`` and
+the module ``mujoco_ilqr``): position servos (PD) on every hinge, with gains and
+torque limits proportional to body mass. The optimised control is the servo target
+angle; the applied torque is ``clip(kp (u - q) - kv q̇, ±limit)``. Pure torque
+motors at the video rate (dt = 1/50 s) diverge; implicit PD damping + armature does
+not (``tests/backends/test_humanoid.py::test_random_servo_targets_stay_stable``),
+with two MuJoCo substeps per video frame.
+
+The root (``p{pid}_root_x/y/z`` slides + ``p{pid}_root`` ball) is kinematically a
+free joint with the same qpos/qvel layout (xyz, quat_wxyz / world linear velocity,
+local angular velocity). It is not actuated, except by the fallback *residual*:
+three force-limited servos ``p{pid}_res_x/y/z`` (actuator group 3, disabled
+by default via ``opt.disableactuator``) that pull the pelvis towards the reference
+root position with at most ``residual_force_frac`` of body weight. The optimiser
+enables them only for windows it cannot track and reports their force.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+from xml.sax.saxutils import quoteattr
+
+import mujoco
+import numpy as np
+
+from pipeline.backends.humanoid_skeleton import Skeleton
+
+DENSITY_KG_M3 = 985.0
+GRAVITY = 9.81
+
+
+@dataclass(frozen=True)
+class HumanoidConfig:
+    """How the humanoids and the scene are built."""
+
+    density_kg_m3: float = DENSITY_KG_M3
+    """Body density used for every geom's mass (the paper's 985 kg/m³)."""
+    kp_per_kg: float = 12.0
+    """Servo stiffness (N·m/rad) per kg of body mass, times the joint's strength."""
+    kv_ratio: float = 0.1
+    """Servo damping kv = kv_ratio · kp (s)."""
+    torque_per_kg: float = 6.0
+    """Torque limit (N·m) per kg of body mass, times the joint's strength."""
+    armature: float = 0.25
+    """Joint armature (kg·m²) of the strongest joints of a 75 kg person, scaled by
+    each joint's strength and the body mass; stabilises the video-rate step."""
+    target_slack_rad: float = 1.0
+    """Servo targets may exceed the joint range by this much (torque stays limited)."""
+    joint_damping: float = 1.0
+    """Passive joint damping (N·m·s/rad)."""
+    residual_root: bool = True
+    """Add the (disabled) residual root position servos, for the fallback."""
+    residual_force_frac: float = 0.5
+    """Force limit of each residual servo as a fraction of body weight."""
+    residual_saturation_m: float = 0.05
+    """Root position error at which a residual servo reaches its force limit."""
+    self_collision: Literal["adjacent_filtered", "none"] = "adjacent_filtered"
+    """``adjacent_filtered``: a person's parts collide except parent/child, siblings
+    and grandparent pairs; ``none``: only inter-person and ground contacts."""
+    friction: float = 1.0
+    """Sliding friction of every geom (the floor's too)."""
+    floor_margin_m: float = 0.0
+    """Floor contact margin: the soft contact settles ~2-3 mm into its margin, so
+    soles rest on z ≈ 0 instead of sinking into the floor."""
+    substeps: int = 2
+    """MuJoCo steps per video frame: timestep = 1 / (fps · substeps). At 50 fps, one
+    step (20 ms) is only stable with torque limits ≤ ~3 N·m/kg, too weak to track
+    boxing footwork; two steps (10 ms) are stable at 6 N·m/kg."""
+    solver_iterations: int = 20
+    """Constraint solver iterations per step (Newton)."""
+    person_spacing_m: float = 2.0
+    """Spacing of the default root positions in the MJCF (viewer only)."""
+
+
+@dataclass(frozen=True)
+class PersonLayout:
+    """Where one person lives in the model's arrays."""
+
+    person_id: int
+    qpos_adr: int
+    qvel_adr: int
+    nq: int
+    nv: int
+    hinge_qpos: np.ndarray
+    hinge_dof: np.ndarray
+    servo_ids: np.ndarray
+    residual_ids: np.ndarray
+    site_ids: dict[str, int]
+    root_body: int
+    body_ids: np.ndarray
+    mass_kg: float
+
+
+@dataclass(frozen=True)
+class SceneLayout:
+    """Index maps of a generated scene (built from the compiled model by name)."""
+
+    persons: tuple[PersonLayout, ...]
+    geom_person: np.ndarray = field(repr=False)
+    """(ngeom,) person index of each geom, -1 for the floor."""
+    geom_is_foot: np.ndarray = field(repr=False)
+    """(ngeom,) True for sole geoms."""
+
+    @property
+    def servo_ids(self) -> np.ndarray:
+        return np.concatenate([p.servo_ids for p in self.persons])
+
+    @property
+    def residual_ids(self) -> np.ndarray:
+        return np.concatenate([p.residual_ids for p in self.persons])
+
+
+def _f(v: tuple[float, ...] | list[float] | np.ndarray) -> str:
+    return " ".join(f"{float(x):.5g}" for x in v)
+
+
+def _excluded_pairs(skel: Skeleton) -> list[tuple[str, str]]:
+    """Sibling and grandparent pairs (MuJoCo already filters parent/child)."""
+    parent = {b.name: b.parent for b in skel.bodies}
+    pairs: set[tuple[str, str]] = set()
+    names = [b.name for b in skel.bodies]
+    for a in names:
+        for b in names:
+            if a >= b:
+                continue
+            sib = parent[a] and parent[a] == parent[b]
+            grand = (parent[a] and parent.get(parent[a]) == b) or (parent[b] and parent.get(parent[b]) == a)
+            if sib or grand:
+                pairs.add((a, b))
+    return sorted(pairs)
+
+
+def person_mass_kg(skel: Skeleton, density_kg_m3: float = DENSITY_KG_M3) -> float:
+    """Mass from geom volumes (overlaps between a body's geoms counted twice, as MuJoCo does)."""
+    return skel.geom_volume_m3() * density_kg_m3
+
+
+def _person_xml(pid: int, skel: Skeleton, cfg: HumanoidConfig, offset: np.ndarray, mass: float) -> tuple[str, list[str]]:
+    pre = f"p{pid}_"
+    if cfg.self_collision == "none":
+        # Bit 0 is the floor; person k owns bit k+1 and collides with everyone else's.
+        own = 1 << (pid % 30 + 1)
+        ct, ca = own, 0x7FFFFFFF & ~own
+    else:
+        ct, ca = 1, 0x7FFFFFFF
+    children: dict[str, list[str]] = {}
+    for b in skel.bodies:
+        children.setdefault(b.parent, []).append(b.name)
+    by_name = {b.name: b for b in skel.bodies}
+    actuators: list[str] = []
+
+    def emit(name: str, depth: int) -> list[str]:
+        b = by_name[name]
+        ind = "  " * depth
+        pos = np.asarray(b.origin_m) + (offset if not b.parent else 0.0)
+        lines = [f"{ind}<body name={quoteattr(pre + b.name)} pos={quoteattr(_f(pos))}>"]
+        if not b.parent:
+            for k, ax in enumerate("xyz"):
+                axis = np.eye(3)[k]
+                lines.append(
+                    f'{ind}  <joint name="{pre}root_{ax}" type="slide" axis="{_f(axis)}" ref="{pos[k]:.5g}" '
+                    'limited="false" damping="0" armature="0"/>'
+                )
+            lines.append(f'{ind}  <joint name="{pre}root" type="ball" limited="false" damping="0" armature="0"/>')
+        for j in b.joints:
+            arm = cfg.armature * j.strength * mass / 75.0
+            lines.append(
+                f'{ind}  <joint name="{pre}{j.name}" type="hinge" axis="{_f(j.axis)}" '
+                f'range="{_f(j.range_rad)}" armature="{arm:.4g}"/>'
+            )
+            kp = cfg.kp_per_kg * mass * j.strength
+            lim = cfg.torque_per_kg * mass * j.strength
+            # Targets may lie beyond the joint range so that the servo can be driven
+            # hard (fast punches); the torque limit bounds the effort.
+            lo, hi = j.range_rad[0] - cfg.target_slack_rad, j.range_rad[1] + cfg.target_slack_rad
+            actuators.append(
+                f'    <position name="{pre}{j.name}" joint="{pre}{j.name}" kp="{kp:.5g}" '
+                f'kv="{cfg.kv_ratio * kp:.5g}" ctrlrange="{lo:.5g} {hi:.5g}" '
+                f'forcelimited="true" forcerange="{-lim:.5g} {lim:.5g}"/>'
+            )
+        for k, g in enumerate(b.geoms):
+            gname = f"{pre}{b.name}_g{k}"
+            common = f'name="{gname}" contype="{ct}" conaffinity="{ca}"'
+            if g.kind == "capsule":
+                lines.append(f'{ind}  <geom {common} type="capsule" fromto="{_f(g.a_m + g.b_m)}" size="{g.radius_m:.5g}"/>')
+            elif g.kind == "sphere":
+                lines.append(f'{ind}  <geom {common} type="sphere" pos="{_f(g.a_m)}" size="{g.radius_m:.5g}"/>')
+            elif g.kind == "box":
+                lines.append(f'{ind}  <geom {common} type="box" pos="{_f(g.a_m)}" size="{_f(g.b_m)}" class="sole"/>')
+            else:
+                raise ValueError(f"unsupported geom kind {g.kind!r} in body {b.name}")
+        for sname, spos in b.sites:
+            lines.append(f'{ind}  <site name="{pre}{sname}" pos="{_f(spos)}" size="0.012"/>')
+        for c in children.get(name, []):
+            lines += emit(c, depth + 1)
+        lines.append(f"{ind}</body>")
+        return lines
+
+    root = children[""][0]
+    body_lines = emit(root, 2)
+    if cfg.residual_root:
+        lim = cfg.residual_force_frac * mass * GRAVITY
+        kp = lim / cfg.residual_saturation_m
+        kv = 2.0 * np.sqrt(kp * mass)
+        for ax in "xyz":
+            actuators.append(
+                f'    <position name="{pre}res_{ax}" joint="{pre}root_{ax}" kp="{kp:.5g}" kv="{kv:.5g}" group="3" '
+                f'ctrlrange="-1000 1000" forcelimited="true" forcerange="{-lim:.5g} {lim:.5g}"/>'
+            )
+    return "\n".join(body_lines), actuators
+
+
+def build_scene_mjcf(
+    skeletons: list[Skeleton],
+    person_ids: list[int],
+    fps: float,
+    cfg: HumanoidConfig = HumanoidConfig(),
+) -> str:
+    """MJCF text of all persons on a ground plane (z = 0), timestep 1/(fps·substeps).
+
+    Raises ``ValueError`` for mismatched inputs or a non-positive fps.
+    """
+    if len(skeletons) != len(person_ids) or not skeletons:
+        raise ValueError(f"need one skeleton per person id, got {len(skeletons)} for {person_ids}")
+    if not (fps > 0):
+        raise ValueError(f"fps must be positive, got {fps}")
+    if cfg.substeps < 1:
+        raise ValueError(f"substeps must be >= 1, got {cfg.substeps}")
+    bodies: list[str] = []
+    acts: list[str] = []
+    excludes: list[str] = []
+    for i, (pid, skel) in enumerate(zip(person_ids, skeletons, strict=True)):
+        mass = person_mass_kg(skel, cfg.density_kg_m3)
+        offset = np.array([0.0, cfg.person_spacing_m * i, skel.pelvis_height_m])
+        xml, a = _person_xml(pid, skel, cfg, offset, mass)
+        bodies.append(xml)
+        acts += a
+        if cfg.self_collision == "adjacent_filtered":
+            excludes += [f'    <exclude body1="p{pid}_{a_}" body2="p{pid}_{b_}"/>' for a_, b_ in _excluded_pairs(skel)]
+    fr = cfg.friction
+    return f"""<mujoco model="cornerman_scene">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{1.0 / (fps * cfg.substeps):.6g}" integrator="implicitfast" iterations="{cfg.solver_iterations}" ls_iterations="10"
+          actuatorgroupdisable="3"/>
+  <default>
+    <joint damping="{cfg.joint_damping:.5g}" limited="true"/>
+    <geom density="{cfg.density_kg_m3:.6g}" friction="{fr:.3g} 0.01 0.001" condim="3" rgba="0.7 0.6 0.5 1"/>
+    <default class="sole">
+      <geom rgba="0.3 0.3 0.3 1"/>
+    </default>
+    <site rgba="1 0 0 1" group="3"/>
+  </default>
+  <visual>
+    <headlight ambient="0.4 0.4 0.4"/>
+  </visual>
+  <worldbody>
+    <light pos="0 0 6" dir="0 0 -1"/>
+    <geom name="floor" type="plane" size="20 20 0.1" contype="1" conaffinity="2147483647" friction="{fr:.3g} 0.01 0.001"
+          margin="{cfg.floor_margin_m:.4g}" rgba="0.85 0.85 0.8 1"/>
+{chr(10).join(bodies)}
+  </worldbody>
+  <contact>
+{chr(10).join(excludes)}
+  </contact>
+  <actuator>
+{chr(10).join(acts)}
+  </actuator>
+</mujoco>
+"""
+
+
+def load_model(mjcf: str) -> mujoco.MjModel:
+    """Compile MJCF text; MuJoCo's compile error is raised as ``ValueError``."""
+    try:
+        return mujoco.MjModel.from_xml_string(mjcf)
+    except ValueError as e:
+        raise ValueError(f"MJCF does not compile: {e}") from e
+
+
+def scene_layout(model: mujoco.MjModel, person_ids: list[int]) -> SceneLayout:
+    """Index maps of the persons in a model built by :func:`build_scene_mjcf`."""
+    persons = []
+    geom_person = np.full(model.ngeom, -1, dtype=np.int64)
+    for i, pid in enumerate(person_ids):
+        pre = f"p{pid}_"
+        root_j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, pre + "root_x")
+        if root_j < 0:
+            raise ValueError(f"model has no person {pid} (joint {pre}root missing)")
+        joints = [j for j in range(model.njnt) if model.joint(j).name.startswith(pre)]
+        hinges = [j for j in joints if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE]
+        acts = [a for a in range(model.nu) if model.actuator(a).name.startswith(pre)]
+        servo = [a for a in acts if "_res_" not in model.actuator(a).name]
+        resid = [a for a in acts if "_res_" in model.actuator(a).name]
+        sites = {model.site(s).name[len(pre):]: s for s in range(model.nsite) if model.site(s).name.startswith(pre)}
+        bodies = np.array(
+            [b for b in range(model.nbody) if model.body(b).name.startswith(pre)], dtype=np.int64
+        )
+        root_body = int(model.jnt_bodyid[root_j])
+        qadr = int(model.jnt_qposadr[root_j])
+        vadr = int(model.jnt_dofadr[root_j])
+        nq = 7 + len(hinges)
+        nv = 6 + len(hinges)
+        for g in range(model.ngeom):
+            if model.geom_bodyid[g] in set(bodies.tolist()):
+                geom_person[g] = i
+        persons.append(
+            PersonLayout(
+                person_id=int(pid),
+                qpos_adr=qadr,
+                qvel_adr=vadr,
+                nq=nq,
+                nv=nv,
+                hinge_qpos=np.array([model.jnt_qposadr[j] for j in hinges], dtype=np.int64),
+                hinge_dof=np.array([model.jnt_dofadr[j] for j in hinges], dtype=np.int64),
+                servo_ids=np.array(servo, dtype=np.int64),
+                residual_ids=np.array(resid, dtype=np.int64),
+                site_ids=sites,
+                root_body=root_body,
+                body_ids=bodies,
+                mass_kg=float(model.body_subtreemass[root_body]),
+            )
+        )
+    is_foot = np.array([model.geom(g).name.endswith("_foot_g0") for g in range(model.ngeom)])
+    return SceneLayout(persons=tuple(persons), geom_person=geom_person, geom_is_foot=is_foot)

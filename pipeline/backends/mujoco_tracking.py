@@ -1,0 +1,272 @@
+"""The physics stage's cost (paper eq. 5) and the kinematic reference it tracks.
+
+Cost at step t (x = (q, v), u = servo targets):
+
+    w1 (‖v‖² + ‖u_servo − û‖²)                            L_reg
+  + w2 (Σ_sites c_j [(1−β) ‖R_rootᵀ(s_j − p_root) − ŝ_j^body‖²   L_p, body frame
+                     + β ‖s_j − ŝ_j^world‖²]                    (+ world frame, β = world_frac)
+        + ‖p_root − p̂_root‖² + (0.3 m)² ‖q_root ⊖ q̂_root‖²)  (+ root placement)
+  + w3 ‖v − v̂‖²                                           L_v
+  + w4 Σ_{contacts between people} depth²                  L_collision
+
+Hatted quantities come from the reference: per-frame inverse kinematics of the
+fitted 3D joints onto the humanoid's sites (:func:`inverse_kinematics`). The
+servo-target regulariser replaces the paper's ‖u‖² because our controls are PD
+targets, not torques: û are the reference servo targets with the inverse-dynamics
+feed-forward (``mujoco_physics.servo_feedforward``), which cost nothing.
+Gauss–Newton Hessians: lxx = 2 Σ w Jᵀ J. Contact-depth Jacobians use the contact
+normal n (geom1 → geom2): ∂dist/∂q = nᵀ (J_body2(p) − J_body1(p)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from pipeline.backends.mujoco_humanoid import SceneLayout
+
+ROOT_ROT_LEVER_M = 0.3
+
+
+@dataclass(frozen=True)
+class CostWeights:
+    """Weights of eq. 5 (defaults: the paper's)."""
+
+    w_reg: float = 0.001
+    """w1: velocity and control regularisation."""
+    w_pos: float = 10.0
+    """w2: joint position tracking (body frame) + root placement."""
+    w_vel: float = 0.1
+    """w3: generalised velocity tracking."""
+    w_collision: float = 20.0
+    """w4: squared inter-person penetration depth (m²)."""
+    world_frac: float = 0.5
+    """Share of w2 given to world-frame joint positions (the rest: body frame).
+    Body-frame residuals alone (the paper's) leave foot placement to the single
+    root-position residual; world-frame ones pull each foot to where it was seen."""
+
+
+@dataclass(frozen=True)
+class Reference:
+    """What the optimiser tracks, frame by frame.
+
+    site_ids: (persons, sites) MuJoCo site ids of the tracked keypoints.
+    site_local_m: (frames, persons, sites, 3) keypoints in the reference root frame.
+    site_world_m: (frames, persons, sites, 3) keypoints in the world frame.
+    site_weight: (frames, persons, sites) ≥ 0 (0 where the joint was not observed).
+    qpos: (frames, nq) reference (IK) configuration; qvel: (frames, nv).
+    ctrl: (frames, nu) reference servo targets.
+    """
+
+    site_ids: np.ndarray
+    site_local_m: np.ndarray
+    site_world_m: np.ndarray
+    site_weight: np.ndarray
+    qpos: np.ndarray
+    qvel: np.ndarray
+    ctrl: np.ndarray
+
+
+def _root_frames(layout: SceneLayout, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]]:
+    return [(data.xpos[p.root_body].copy(), data.xmat[p.root_body].reshape(3, 3).copy()) for p in layout.persons]
+
+
+def _skew(a: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def inter_person_contacts(layout: SceneLayout, model: mujoco.MjModel, data: mujoco.MjData) -> list[int]:
+    """Indices into ``data.contact`` of contacts between geoms of different people."""
+    return _cross_group_contacts(layout.geom_person, data)
+
+
+def _cross_group_contacts(geom_group: np.ndarray, data: mujoco.MjData) -> list[int]:
+    if data.ncon == 0:
+        return []
+    g = data.contact.geom[: data.ncon]
+    pa, pb = geom_group[g[:, 0]], geom_group[g[:, 1]]
+    return np.flatnonzero((pa >= 0) & (pb >= 0) & (pa != pb)).tolist()
+
+
+def collision_depths(
+    model: mujoco.MjModel, data: mujoco.MjData, geom_group: np.ndarray, with_jac: bool
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Penetration depths (c,) of contacts between geoms of different groups
+    (``geom_group`` (ngeom,): person index, -1 = not a person) and, optionally,
+    their Jacobians (c, nv) with respect to the tangent of qpos.
+
+    Uses the contact normal n (geom1 → geom2): ∂dist/∂q = nᵀ (J_body2(p) − J_body1(p)),
+    so ∂depth/∂q = −nᵀ (J_body2(p) − J_body1(p)). ``data`` must hold a forward pass.
+    """
+    idx = [c for c in _cross_group_contacts(geom_group, data) if data.contact.dist[c] < 0]
+    depth = np.array([-data.contact.dist[c] for c in idx])
+    if not with_jac:
+        return depth, None
+    J = np.zeros((len(idx), model.nv))
+    j1, j2 = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    for row, c in enumerate(idx):
+        con = data.contact[c]
+        mujoco.mj_jac(model, data, j1, None, con.pos, model.geom_bodyid[con.geom[0]])
+        mujoco.mj_jac(model, data, j2, None, con.pos, model.geom_bodyid[con.geom[1]])
+        J[row] = -(con.frame[:3] @ (j2 - j1))
+    return depth, J
+
+
+class TrackingCost:
+    """Eq. 5 as a :class:`pipeline.backends.mujoco_ilqr.Cost`."""
+
+    def __init__(self, model: mujoco.MjModel, layout: SceneLayout, ref: Reference, weights: CostWeights) -> None:
+        self.model = model
+        self.layout = layout
+        self.ref = ref
+        self.w = weights
+        self.servo = layout.servo_ids
+        self.hinge_qpos = np.concatenate([p.hinge_qpos for p in layout.persons])
+        self._ref_root = []
+        nf = ref.qpos.shape[0]
+        for p in layout.persons:
+            pos = ref.qpos[:, p.qpos_adr : p.qpos_adr + 3]
+            quat = ref.qpos[:, p.qpos_adr + 3 : p.qpos_adr + 7]
+            self._ref_root.append((pos, quat))
+        self._jac = np.zeros((3, model.nv))
+        self._nf = nf
+
+    def _t(self, t: int) -> int:
+        return min(max(t, 0), self._nf - 1)
+
+    def _pose_residuals(self, data: mujoco.MjData, t: int, with_jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """Stacked sqrt-weighted residuals of L_p (and their Jacobians, (r, nv))."""
+        m, ref, lay = self.model, self.ref, self.layout
+        rs: list[np.ndarray] = []
+        js: list[np.ndarray] = []
+        for i, p in enumerate(lay.persons):
+            proot = data.xpos[p.root_body]
+            R = data.xmat[p.root_body].reshape(3, 3)
+            w = np.sqrt(ref.site_weight[t, i] * (1.0 - self.w.world_frac))
+            ww = np.sqrt(ref.site_weight[t, i] * self.w.world_frac)
+            sites = ref.site_ids[i]
+            v = data.site_xpos[sites] - proot  # (S, 3)
+            local = v @ R  # R^T v per row
+            rs.append(((local - ref.site_local_m[t, i]) * w[:, None]).ravel())
+            rs.append(((data.site_xpos[sites] - ref.site_world_m[t, i]) * ww[:, None]).ravel())
+            pos_ref, quat_ref = self._ref_root[i][0][t], self._ref_root[i][1][t]
+            rs.append(proot - pos_ref)
+            drot = np.zeros(3)
+            mujoco.mju_subQuat(drot, data.qpos[p.qpos_adr + 3 : p.qpos_adr + 7], quat_ref)
+            rs.append(ROOT_ROT_LEVER_M * drot)
+            if with_jac:
+                va = p.qvel_adr
+                jw: list[np.ndarray] = []
+                for s_idx, sid in enumerate(sites):
+                    if w[s_idx] == 0.0 and ww[s_idx] == 0.0:
+                        js.append(np.zeros((3, m.nv)))
+                        jw.append(np.zeros((3, m.nv)))
+                        continue
+                    mujoco.mj_jacSite(m, data, self._jac, None, int(sid))
+                    jw.append(ww[s_idx] * self._jac)
+                    J = self._jac.copy()
+                    J[:, va : va + 3] -= np.eye(3)
+                    Jl = R.T @ J
+                    Jl[:, va + 3 : va + 6] += _skew(local[s_idx])
+                    js.append(w[s_idx] * Jl)
+                js += jw
+                Jp = np.zeros((3, m.nv))
+                Jp[:, va : va + 3] = np.eye(3)
+                js.append(Jp)
+                Jr = np.zeros((3, m.nv))
+                Jr[:, va + 3 : va + 6] = ROOT_ROT_LEVER_M * np.eye(3)
+                js.append(Jr)
+        r = np.concatenate(rs)
+        return r, (np.vstack(js) if with_jac else None)
+
+    def _collision(self, data: mujoco.MjData, with_jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        return collision_depths(self.model, data, self.layout.geom_person, with_jac)
+
+    def set_residual(self, on: bool, torque_limit_nm: np.ndarray | None = None, saturation_rad: float = 0.1) -> None:
+        """Enable the residual root torque: a PD on each root orientation towards the
+        reference, |τ| ≤ ``torque_limit_nm`` (persons,). It is a function of the
+        state, applied through ``xfrc_applied`` before each step."""
+        self.residual_on = on
+        if torque_limit_nm is not None:
+            self._tau_lim = np.asarray(torque_limit_nm, dtype=float)
+            self._kp_rot = self._tau_lim / saturation_rad
+            inertia = np.array([p.mass_kg * 0.15**2 for p in self.layout.persons])
+            self._kd_rot = 2.0 * np.sqrt(self._kp_rot * inertia)
+
+    def root_torque(self, qpos: np.ndarray, qvel: np.ndarray, t: int) -> np.ndarray:
+        """(persons, 3) residual root torque (world frame, N·m) at state (qpos, qvel)."""
+        out = np.zeros((len(self.layout.persons), 3))
+        if not getattr(self, "residual_on", False):
+            return out
+        tr = self._t(t)
+        R = np.zeros(9)
+        for i, p in enumerate(self.layout.persons):
+            q = qpos[p.qpos_adr + 3 : p.qpos_adr + 7]
+            err = np.zeros(3)
+            mujoco.mju_subQuat(err, q, self._ref_root[i][1][tr])
+            mujoco.mju_quat2Mat(R, q)
+            Rm = R.reshape(3, 3)
+            w_local = qvel[p.qvel_adr + 3 : p.qvel_adr + 6]
+            tau = -(self._kp_rot[i] * (Rm @ err) + self._kd_rot[i] * (Rm @ w_local))
+            n = np.linalg.norm(tau)
+            out[i] = tau if n <= self._tau_lim[i] else tau * (self._tau_lim[i] / n)
+        return out
+
+    def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int) -> None:
+        """Apply the residual root torque of the current state (no-op when off)."""
+        if not getattr(self, "residual_on", False):
+            return
+        tau = self.root_torque(data.qpos, data.qvel, t)
+        for i, p in enumerate(self.layout.persons):
+            data.xfrc_applied[p.root_body, 3:6] = tau[i]
+
+    def value(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, u: np.ndarray | None) -> float:
+        t = self._t(t)
+        w, ref = self.w, self.ref
+        v = data.qvel
+        rp, _ = self._pose_residuals(data, t, False)
+        depth, _ = self._collision(data, False)
+        c = w.w_reg * float(v @ v) + w.w_pos * float(rp @ rp) + w.w_vel * float(np.sum((v - ref.qvel[t]) ** 2))
+        c += w.w_collision * float(depth @ depth)
+        if u is not None:
+            du = u[self.servo] - ref.ctrl[t, self.servo]
+            c += w.w_reg * float(du @ du)
+        return c
+
+    def derivatives(
+        self, model: mujoco.MjModel, data: mujoco.MjData, t: int, u: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        t = self._t(t)
+        w, ref, nv, nu = self.w, self.ref, model.nv, model.nu
+        lx = np.zeros(2 * nv)
+        lxx = np.zeros((2 * nv, 2 * nv))
+        rp, Jp = self._pose_residuals(data, t, True)
+        assert Jp is not None
+        lx[:nv] += 2 * w.w_pos * (Jp.T @ rp)
+        lxx[:nv, :nv] += 2 * w.w_pos * (Jp.T @ Jp)
+        depth, Jc = self._collision(data, True)
+        if depth.size:
+            assert Jc is not None
+            lx[:nv] += 2 * w.w_collision * (Jc.T @ depth)
+            lxx[:nv, :nv] += 2 * w.w_collision * (Jc.T @ Jc)
+        v = data.qvel
+        lx[nv:] += 2 * w.w_reg * v + 2 * w.w_vel * (v - ref.qvel[t])
+        lxx[nv:, nv:] += 2 * (w.w_reg + w.w_vel) * np.eye(nv)
+        lu = np.zeros(nu)
+        luu = np.zeros((nu, nu))
+        if u is not None:
+            lu[self.servo] = 2 * w.w_reg * (u[self.servo] - ref.ctrl[t, self.servo])
+            luu[self.servo, self.servo] = 2 * w.w_reg
+        return lx, lu, lxx, luu
+
+
+def tracking_error_m(layout: SceneLayout, data: mujoco.MjData, targets_world: np.ndarray, weight: np.ndarray, site_ids: np.ndarray) -> float:
+    """Weighted mean world-frame distance between sites and targets (persons, sites, 3)."""
+    err, tot = 0.0, 0.0
+    for i in range(len(layout.persons)):
+        d = np.linalg.norm(data.site_xpos[site_ids[i]] - targets_world[i], axis=-1)
+        err += float((d * weight[i]).sum())
+        tot += float(weight[i].sum())
+    return err / max(tot, 1e-9)

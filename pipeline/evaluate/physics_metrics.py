@@ -1,0 +1,180 @@
+"""Physical plausibility and accuracy metrics of 3D motion (pure numpy).
+
+Every metric works on a ``Keypoints3D`` (COCO-17, feet optional), so the kinematic
+input, the physics output and ground truth are scored the same way. Inter-person
+penetration uses capsule proxies of the body built from the joints (same radii for
+every method), so it does not depend on the simulator's geometry.
+
+Units: mm, frames at the sequence's fps. Foot contact is a (frames, persons, 2)
+bool mask (left, right), e.g. the synthetic bout's ``foot_contact``; without it,
+a foot is in contact when its lowest point is below ``contact_height_m``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.schema.keypoints3d import Keypoints3D
+
+
+@dataclass(frozen=True)
+class CapsuleProxy:
+    """Body capsules: (joint a, joint b, radius_m); a == b gives a sphere.
+    Midpoints are written ``"mid:a+b"``."""
+
+    segments: tuple[tuple[str, str, float], ...] = (
+        ("mid:left_hip+right_hip", "mid:left_shoulder+right_shoulder", 0.115),
+        ("left_hip", "right_hip", 0.10),
+        ("mid:left_ear+right_ear", "mid:left_ear+right_ear", 0.085),
+        ("left_shoulder", "left_elbow", 0.048),
+        ("right_shoulder", "right_elbow", 0.048),
+        ("left_elbow", "left_wrist", 0.039),
+        ("right_elbow", "right_wrist", 0.039),
+        ("left_wrist", "left_wrist", 0.062),
+        ("right_wrist", "right_wrist", 0.062),
+        ("left_hip", "left_knee", 0.08),
+        ("right_hip", "right_knee", 0.08),
+        ("left_knee", "left_ankle", 0.053),
+        ("right_knee", "right_ankle", 0.053),
+    )
+
+
+def _point(kp: Keypoints3D, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """(frames, persons, 3) positions and (frames, persons) validity of a joint or midpoint."""
+    if name.startswith("mid:"):
+        a, b = name[4:].split("+")
+        ia, ib = kp.joint_names.index(a), kp.joint_names.index(b)
+        return 0.5 * (kp.xyz_m[:, :, ia] + kp.xyz_m[:, :, ib]), kp.valid[:, :, ia] & kp.valid[:, :, ib]
+    i = kp.joint_names.index(name)
+    return kp.xyz_m[:, :, i], kp.valid[:, :, i]
+
+
+def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
+    """Closest distance between segments [p0, p1] and [q0, q1] (broadcast over leading dims)."""
+    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
+    a = np.sum(d1 * d1, -1)
+    e = np.sum(d2 * d2, -1)
+    f = np.sum(d2 * r, -1)
+    c = np.sum(d1 * r, -1)
+    b = np.sum(d1 * d2, -1)
+    eps = 1e-12
+    a_s, e_s = np.maximum(a, eps), np.maximum(e, eps)
+    denom = a * e - b * b
+    # Ericson, Real-Time Collision Detection §5.1.9, vectorised.
+    s = np.where(denom > eps * np.maximum(a * e, eps), np.clip((b * f - c * e) / np.maximum(denom, eps), 0.0, 1.0), 0.0)
+    s = np.where(e <= eps, np.clip(-c / a_s, 0.0, 1.0), s)
+    t = np.where(e > eps, (b * s + f) / e_s, 0.0)
+    s = np.where(t < 0.0, np.clip(-c / a_s, 0.0, 1.0), s)
+    s = np.where(t > 1.0, np.clip((b - c) / a_s, 0.0, 1.0), s)
+    t_c = np.clip(t, 0.0, 1.0)
+    s = np.where(a <= eps, 0.0, s)
+    t_c = np.where(a <= eps, np.where(e > eps, np.clip(f / e_s, 0.0, 1.0), 0.0), t_c)
+    cp = p0 + d1 * s[..., None]
+    cq = q0 + d2 * t_c[..., None]
+    return np.linalg.norm(cp - cq, axis=-1)
+
+
+def inter_person_penetration_mm(kp: Keypoints3D, proxy: CapsuleProxy = CapsuleProxy()) -> np.ndarray:
+    """(frames,) deepest capsule overlap between any two persons, mm (0 = none)."""
+    F, P = kp.n_frames, kp.n_persons
+    ends = [(_point(kp, a), _point(kp, b), r) for a, b, r in proxy.segments]
+    out = np.zeros(F)
+    for i in range(P):
+        for j in range(i + 1, P):
+            for (pa, va), (pb, vb), ri in ends:
+                for (qa, wa), (qb, wb), rj in ends:
+                    dist = segment_distance(pa[:, i], pb[:, i], qa[:, j], qb[:, j])
+                    ok = va[:, i] & vb[:, i] & wa[:, j] & wb[:, j]
+                    pen = np.where(ok, np.maximum(ri + rj - dist, 0.0), 0.0)
+                    out = np.maximum(out, pen)
+    return 1000.0 * out
+
+
+def _foot_points(kp: Keypoints3D) -> dict[str, list[int]]:
+    out = {}
+    for side in ("left", "right"):
+        names = [f"{side}_heel", f"{side}_big_toe", f"{side}_small_toe"]
+        idx = [kp.joint_names.index(n) for n in names if n in kp.joint_names]
+        out[side] = idx if idx else [kp.joint_names.index(f"{side}_ankle")]
+    return out
+
+
+def foot_contact_from_height(kp: Keypoints3D, contact_height_m: float = 0.03) -> np.ndarray:
+    """(frames, persons, 2) contact estimate: lowest foot point below the threshold."""
+    fp = _foot_points(kp)
+    out = np.zeros((kp.n_frames, kp.n_persons, 2), dtype=bool)
+    for k, side in enumerate(("left", "right")):
+        z = kp.xyz_m[:, :, fp[side], 2].min(axis=-1)
+        out[..., k] = z < contact_height_m
+    return out
+
+
+def _smooth_diff(x: np.ndarray, order: int) -> np.ndarray:
+    for _ in range(order):
+        x = np.diff(x, axis=0)
+    return x
+
+
+def physics_metrics(
+    kp: Keypoints3D,
+    gt: Keypoints3D | None = None,
+    foot_contact: np.ndarray | None = None,
+    proxy: CapsuleProxy = CapsuleProxy(),
+) -> dict[str, float]:
+    """All metrics of one motion; ``gt`` enables MPJPE / acceleration / foot-height errors.
+
+    ``gt`` must have the same frames and persons (matched by id); joints are matched
+    by name. Raises ``ValueError`` on mismatched extents.
+    """
+    pen = inter_person_penetration_mm(kp, proxy)
+    z = np.where(kp.valid, kp.xyz_m[..., 2], np.inf)
+    ground = 1000.0 * np.maximum(-z.min(axis=-1), 0.0)  # (frames, persons)
+    contact = foot_contact if foot_contact is not None else foot_contact_from_height(kp)
+    if contact.shape != (kp.n_frames, kp.n_persons, 2):
+        raise ValueError(f"foot_contact shape {contact.shape} != {(kp.n_frames, kp.n_persons, 2)}")
+    fp = _foot_points(kp)
+    skate: list[np.ndarray] = []
+    for k, side in enumerate(("left", "right")):
+        xy = kp.xyz_m[:, :, fp[side], :2].mean(axis=2)  # (F, P, 2)
+        step = np.linalg.norm(np.diff(xy, axis=0), axis=-1)  # (F-1, P)
+        both = contact[1:, :, k] & contact[:-1, :, k]
+        skate.append(step[both])
+    skate_all = np.concatenate(skate) if skate else np.zeros(0)
+    speed = skate_all * kp.fps
+    acc = np.linalg.norm(_smooth_diff(kp.xyz_m, 2), axis=-1)
+    jerk = np.linalg.norm(_smooth_diff(kp.xyz_m, 3), axis=-1)
+    out: dict[str, float] = {
+        "inter_penetration_max_mm": float(pen.max(initial=0.0)),
+        "inter_penetration_mean_mm": float(pen.mean()) if pen.size else 0.0,
+        "ground_penetration_max_mm": float(ground.max(initial=0.0)),
+        "ground_penetration_mean_mm": float(ground.mean()) if ground.size else 0.0,
+        "foot_skate_mm_per_frame": float(1000.0 * skate_all.mean()) if skate_all.size else 0.0,
+        "foot_speed_contact_mm_s": float(1000.0 * speed.mean()) if speed.size else 0.0,
+        "accel_mm_per_frame2": float(1000.0 * acc.mean()) if acc.size else 0.0,
+        "jerk_mm_per_frame3": float(1000.0 * jerk.mean()) if jerk.size else 0.0,
+    }
+    if gt is not None:
+        if gt.n_frames != kp.n_frames:
+            raise ValueError(f"gt has {gt.n_frames} frames, prediction {kp.n_frames}")
+        prow = [gt.person_index(int(p)) for p in kp.person_ids]
+        names = [n for n in kp.joint_names if n in gt.joint_names]
+        ip = [kp.joint_names.index(n) for n in names]
+        ig = [gt.joint_names.index(n) for n in names]
+        a = kp.xyz_m[:, :, ip]
+        b = gt.xyz_m[:, prow][:, :, ig]
+        ok = kp.valid[:, :, ip] & gt.valid[:, prow][:, :, ig]
+        err = np.linalg.norm(a - b, axis=-1)
+        out["mpjpe_mm"] = float(1000.0 * err[ok].mean()) if ok.any() else float("nan")
+        acc_err = np.linalg.norm(_smooth_diff(a, 2) - _smooth_diff(b, 2), axis=-1)
+        out["accel_err_mm_per_frame2"] = float(1000.0 * acc_err.mean()) if acc_err.size else 0.0
+        fh = []
+        gfp = _foot_points(gt)
+        for k, side in enumerate(("left", "right")):
+            zp = kp.xyz_m[:, :, fp[side], 2].min(axis=-1)
+            zg = gt.xyz_m[:, prow][:, :, gfp[side], 2].min(axis=-1)
+            fh.append(np.abs(zp - zg)[contact[:, :, k]])
+        fh_all = np.concatenate(fh)
+        out["foot_height_err_contact_mm"] = float(1000.0 * fh_all.mean()) if fh_all.size else 0.0
+    return out

@@ -1,0 +1,118 @@
+"""Physics stage on a short two-person clip built in code."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mujoco")
+
+from pipeline.backends.humanoid_skeleton import _DEFAULT_LENGTHS, build_skeleton, rest_site_positions  # noqa: E402
+from pipeline.evaluate.physics_metrics import inter_person_penetration_mm  # noqa: E402
+from pipeline.schema.base import from_arrays, to_arrays  # noqa: E402
+from pipeline.schema.joints import COCO17_FEET  # noqa: E402
+from pipeline.schema.keypoints3d import Keypoints3D  # noqa: E402
+from pipeline.schema.results import PhysicsResult  # noqa: E402
+from pipeline.stages.physics import PhysicsConfig, PhysicsInputs, run  # noqa: E402
+
+FAST = PhysicsConfig(window=5, commit=3, max_iter=2, n_alpha=3)
+
+
+def _facing_pair(gap_m: float, n_frames: int = 10) -> Keypoints3D:
+    """Two upright persons facing each other, pelvis origins ``gap_m`` apart along x
+    and 0.1 m apart along y (so that their feet interleave without overlapping),
+    with a slow sway; at gap 0.18 m their torsos overlap by ~5 cm."""
+    sk = build_skeleton(dict(_DEFAULT_LENGTHS))
+    rs = rest_site_positions(sk)
+    base = np.array([rs[n] for n in COCO17_FEET])
+    base[:, 2] += sk.pelvis_height_m
+    xyz = np.zeros((n_frames, 2, len(COCO17_FEET), 3))
+    for f in range(n_frames):
+        sway = 0.01 * np.sin(f / 5.0)
+        xyz[f, 0] = base + [0.0, sway, 0.0]
+        xyz[f, 1] = base @ np.diag([-1.0, -1.0, 1.0]) + [gap_m, 0.1 + sway, 0.0]
+    F, J = n_frames, len(COCO17_FEET)
+    return Keypoints3D(
+        joint_names=COCO17_FEET,
+        person_ids=np.array([0, 1]),
+        frame_indices=np.arange(100, 100 + F),
+        fps=50.0,
+        xyz_m=xyz,
+        valid=np.ones((F, 2, J), bool),
+        confidence=np.ones((F, 2, J)),
+        n_views=np.zeros((F, 2, J), np.int64),
+        reproj_err_px=np.full((F, 2, J), np.nan),
+        source="fit",
+    )
+
+
+def test_two_person_clip_ends_with_less_penetration() -> None:
+    kp = _facing_pair(0.18)
+    out = run(PhysicsInputs(kp), FAST)
+    pen_in = inter_person_penetration_mm(kp)
+    pen_out = inter_person_penetration_mm(out.keypoints)
+    assert pen_in[-1] > 30.0
+    assert pen_out[-1] < 0.5 * pen_in[-1]
+    assert pen_out.mean() < pen_in.mean()
+    # Outputs are complete and round-trip through the schema.
+    res = out.result
+    assert res.qpos.shape[0] == kp.n_frames and res.actuation == "pd"
+    assert np.array_equal(res.frame_indices, kp.frame_indices)
+    assert out.keypoints.source == "physics" and out.keypoints.joint_names == COCO17_FEET
+    assert from_arrays(PhysicsResult, to_arrays(res)).qpos.shape == res.qpos.shape
+    assert "<mujoco" in out.mjcf and out.stats["windows"] >= 3
+    # Recorded contacts include both feet of both persons on the ground.
+    ground = res.contact_person.min(axis=1) == -1
+    assert ground.any() and set(res.contact_person[ground].max(axis=1).tolist()) == {0, 1}
+
+
+def test_single_person_mode_and_config_checks() -> None:
+    kp = _facing_pair(1.5, n_frames=6)
+    out = run(PhysicsInputs(kp), PhysicsConfig(mode="single", window=5, commit=3, max_iter=1, n_alpha=2, residual_root="off"))
+    assert out.stats["mode"] == "single" and out.stats["windows_with_residual"] == 0
+    assert np.abs(out.result.residual_root_force).max() == 0.0
+    # Far apart, standing still: the simulation stays close to the input.
+    err = np.linalg.norm(out.keypoints.xyz_m - kp.xyz_m, axis=-1).mean()
+    assert err < 0.05
+    with pytest.raises(ValueError, match="commit"):
+        PhysicsConfig(window=4, commit=5)
+    empty = kp.replace(valid=np.zeros_like(kp.valid))
+    with pytest.raises(ValueError, match="no person"):
+        run(PhysicsInputs(empty), FAST)
+
+
+def test_step_is_registered() -> None:
+    from pipeline.runner.steps.physics import SPEC
+
+    assert SPEC.name == "physics" and SPEC.deps == ("fit",)
+    assert SPEC.config_cls is PhysicsConfig
+
+
+class _FakeCtx:
+    """The parts of ``StageContext`` the physics step uses (no files)."""
+
+    def __init__(self, kp: Keypoints3D) -> None:
+        self.kp = kp
+        self.metrics: dict = {}
+        self.events: list[tuple[float, float | None, str]] = []
+
+    def has(self, stage: str, name: str) -> bool:
+        return False
+
+    def load(self, stage: str, name: str, cls: type) -> object:
+        assert (stage, name, cls) == ("fit", "keypoints3d", Keypoints3D)
+        return self.kp
+
+    def progress(self, done: float, total: float | None = None, message: str = "") -> None:
+        self.events.append((done, total, message))
+
+
+def test_step_execute_outputs_and_metrics() -> None:
+    from pipeline.runner.steps.physics import SPEC
+
+    ctx = _FakeCtx(_facing_pair(1.5, n_frames=8))
+    outputs = SPEC.execute(ctx, PhysicsConfig(window=5, commit=3, max_iter=1, n_alpha=2))  # type: ignore[arg-type]
+    assert set(outputs) == {"result", "keypoints3d", "scene.xml"}
+    assert isinstance(outputs["result"], PhysicsResult) and outputs["keypoints3d"].source == "physics"
+    assert ctx.metrics["windows"] == 2 and ctx.metrics["realtime_factor"] > 0
+    assert [e[0] for e in ctx.events] == [1, 2] and all(e[1] == 2 for e in ctx.events)
