@@ -1,0 +1,289 @@
+"""Fit anny to every person's 2D and 3D keypoints over a whole sequence (torch, L-BFGS).
+
+Steps, all persons batched together (their losses are independent sums):
+1. Shape: 6 phenotypes per person from the triangulated limb lengths.
+2. Initialisation per frame: root by Kabsch of the rest torso keypoints onto the observed
+   ones, then each limb bone swung so that its child keypoint points at the observed one.
+3. Pose pass 1: 3D term + priors + smoothness (cheap, gets the limbs close).
+4. Pose pass 2: eq. 3 of the paper (2D Geman-McClure reprojection in every view, 3D,
+   regularisation, smoothness on the pose and on the whole mesh, priors) plus our terms:
+   a pseudo-Huber penalty on keypoint accelerations, soft joint limits, the ground, and
+   per-person landmark offsets; the shape is refined jointly.
+Both pose passes use L-BFGS (history 100, lr 1, strong Wolfe) over every frame at once, on
+variables scaled by the lever arm of what they move (see ``lever_arms``): without that
+scaling L-BFGS needs ~3x more iterations for the same accuracy.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import roma
+import torch
+
+from pipeline.backends.anny_fit_init import (
+    PersonObservations,
+    fit_shapes,
+    forward_kinematics_rootmat,
+    init_limbs,
+    init_roots,
+    joint_idx,
+    rotmat_rows,
+    run_lbfgs,
+)
+from pipeline.backends.anny_fit_terms import MeshMoments, lever_arms, rest_tails, sole_vertices
+from pipeline.backends.anny_fk import SparseKeypoints, keypoints_from_bones
+from pipeline.backends.anny_model import AnnyBody, anny_body
+from pipeline.backends.anny_priors import GMMPrior, joint_limit_penalty, joint_limit_tables
+from pipeline.schema.joints import COCO17_FEET, FOOT_JOINTS
+from pipeline.stages.fit_config import FitConfig
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["AnnyFitOutput", "PersonObservations", "fit_anny"]
+
+
+@dataclass(frozen=True)
+class AnnyFitOutput:
+    """Fitted parameters and keypoints (persons in input order)."""
+
+    bone_names: tuple[str, ...]
+    shape: np.ndarray  # (persons, 6)
+    pose_aa: np.ndarray  # (frames, persons, bones, 3)
+    root_m: np.ndarray  # (frames, persons, 3)
+    keypoints_m: np.ndarray  # (frames, persons, joints, 3)
+    present: np.ndarray  # (frames, persons) bool
+    loss: np.ndarray  # (persons,)
+    timings_s: dict[str, float] = field(default_factory=dict)
+    loss_terms: dict[str, float] = field(default_factory=dict)
+
+
+def fit_anny(
+    observations: list[PersonObservations], P_px: np.ndarray, cfg: FitConfig, body: AnnyBody | None = None
+) -> AnnyFitOutput:
+    """Fit shape and per-frame pose of every person.
+
+    Args:
+        observations: one entry per person (same frame count).
+        P_px: (views, 3, 4) projection matrices to *undistorted* pixels.
+        cfg: the stage config (weights, iterations, robust function).
+    Raises ``ValueError`` on inconsistent inputs.
+    """
+    if not observations:
+        raise ValueError("fit_anny: no persons to fit")
+    nf = observations[0].kp3d_m.shape[0]
+    nv = P_px.shape[0]
+    for o in observations:
+        if o.kp3d_m.shape != (nf, len(COCO17_FEET), 3) or o.uv_px.shape[:2] != (nv, nf):
+            raise ValueError(f"fit_anny: inconsistent observation shapes {o.kp3d_m.shape} / {o.uv_px.shape}")
+    body = body or anny_body(cfg.rig)
+    threads = torch.get_num_threads()
+    if cfg.threads > 0:
+        torch.set_num_threads(cfg.threads)
+    try:
+        return _fit(observations, P_px, cfg, body)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _fit(
+    observations: list[PersonObservations], P_px: np.ndarray, cfg: FitConfig, body: AnnyBody
+) -> AnnyFitOutput:
+    nf = observations[0].kp3d_m.shape[0]
+    nv = P_px.shape[0]
+    npers, nb, nj = len(observations), body.n_bones, len(COCO17_FEET)
+    timings: dict[str, float] = {}
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    shape = fit_shapes(body, observations, cfg)
+    coeffs = body.shape_coeffs(shape)
+    heads_p = body.rest_heads(coeffs)  # (P, B, 3)
+    kpts_p = body.rest_kp_points(coeffs)  # (P, J, B, 3)
+    timings["shape_s"] = time.perf_counter() - t0
+    timings["shape_cpu_s"] = time.process_time() - c0
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    eye = torch.eye(3, dtype=torch.float64).expand(npers, nb, 3, 3)
+    rest_kp = keypoints_from_bones(body, eye, heads_p - heads_p[:, :1], heads_p, kpts_p).numpy()
+    R0 = np.zeros((npers, nf, 3, 3))
+    T0 = np.zeros((npers, nf, 3))
+    present = np.zeros((nf, npers), dtype=bool)
+    for p, o in enumerate(observations):
+        R0[p], T0[p], _ = init_roots(rest_kp[p], o)
+        present[:, p] = (o.w3d > 0).sum(axis=1) >= cfg.min_valid_joints
+
+    # flattened rows: person-major (row = p * nf + f)
+    n = npers * nf
+    row_person = torch.arange(npers).repeat_interleave(nf)
+    heads = heads_p[row_person]
+    R0_t = torch.as_tensor(R0.reshape(n, 3, 3))
+    kp3d = torch.as_tensor(np.stack([o.kp3d_m for o in observations]).reshape(n, nj, 3))
+    w3d = torch.as_tensor(np.stack([o.w3d for o in observations]).reshape(n, nj))
+    uv = torch.as_tensor(np.stack([o.uv_px for o in observations], axis=1).reshape(nv, n, nj, 2))
+    w2d = torch.as_tensor(np.stack([o.w2d for o in observations], axis=1).reshape(nv, n, nj))
+    P_t = torch.as_tensor(P_px, dtype=torch.float64)
+
+    tails = rest_tails(body, heads_p[0].numpy(), body.rest_vertices(coeffs[:1])[0].numpy())
+    frames, lo, hi = (
+        torch.as_tensor(a) for a in joint_limit_tables(body.bone_names, heads_p[0].numpy(), tails)
+    )
+    lo, hi = torch.nan_to_num(lo, neginf=-1e6), torch.nan_to_num(hi, posinf=1e6)
+    prior = GMMPrior.load(cfg.pose_prior_path) if cfg.pose_prior_path else None
+    moments = MeshMoments(body, coeffs) if cfg.w_smooth > 0 else None
+    sparse_kp = SparseKeypoints(body, heads_p, kpts_p)
+    foot = torch.as_tensor(joint_idx(FOOT_JOINTS))
+    sole_idx = torch.as_tensor(sole_vertices(body, body.rest_vertices(coeffs[:1])[0].numpy()))
+    sole_w = body.model.dense_vertex_bone_weights[sole_idx]
+
+    def sole_points(c: torch.Tensor) -> torch.Tensor:
+        v = body.model.template_vertices[sole_idx] + torch.einsum(
+            "cvd,pc->pvd", body.model.blendshapes[:, sole_idx], c
+        )
+        return sole_w[None, :, :, None] * v[:, :, None, :]
+
+    soles = SparseKeypoints(body, heads_p, sole_points(coeffs), weights=sole_w)
+
+    root0 = torch.as_tensor(T0.reshape(n, 3)).clone()
+    with torch.no_grad():
+        pose0 = init_limbs(
+            body,
+            R0_t,
+            torch.zeros(n, nb - 1, 3, dtype=torch.float64),
+            root0,
+            heads,
+            sparse_kp,
+            row_person,
+            kp3d,
+            w3d,
+        )
+    timings["init_s"] = time.perf_counter() - t0
+    # Optimised variables are scaled so that the loss has similar curvature along each
+    # (L-BFGS starts from a scalar Hessian): a rotation is scaled by the lever arm of the
+    # keypoints it moves, the per-person constants by the number of frames they explain.
+    lever = lever_arms(body, rest_kp[0] + heads_p[0, 0].numpy(), heads_p[0].numpy())
+    s_rot = torch.as_tensor(lever)[None, :, None]
+    s_root = float(np.sqrt(nj))
+    s_const = float(np.sqrt(nf))
+    delta_s = torch.zeros(n, 3, dtype=torch.float64, requires_grad=True)
+    pose_s = (pose0 * s_rot[:, 1:]).requires_grad_(True)
+    root_s = (root0 * s_root).requires_grad_(True)
+    # per-person landmark offsets, rigid in the frame of each keypoint's dominant bone
+    offsets_s = torch.zeros(npers, nj, 3, dtype=torch.float64, requires_grad=cfg.calibrate_landmarks)
+    dom = body.kp_w.argmax(dim=1)
+    shape_s = (torch.logit(shape.clamp(1e-4, 1 - 1e-4)) * s_const * 0.3).requires_grad_(cfg.refine_shape)
+    params = [delta_s, pose_s, root_s]
+    params += ([offsets_s] if cfg.calibrate_landmarks else []) + ([shape_s] if cfg.refine_shape else [])
+    rest_heads = heads
+
+    def unscale() -> tuple[torch.Tensor, ...]:
+        """(delta, pose, root, offsets, shape_u) in physical units."""
+        return (
+            delta_s / s_rot[:, 0],
+            pose_s / s_rot[:, 1:],
+            root_s / s_root,
+            offsets_s / s_const,
+            shape_s / (s_const * 0.3),
+        )
+
+    def set_shape(shape_u: torch.Tensor) -> torch.Tensor:
+        """Rest heads per row for the current shape (and the folded keypoint points)."""
+        if not cfg.refine_shape:
+            return rest_heads
+        c = body.shape_coeffs(torch.sigmoid(shape_u))
+        hp = body.rest_heads(c)
+        sparse_kp.set_shape(hp, body.rest_kp_points(c))
+        soles.set_shape(hp, sole_points(c))
+        return hp[row_person]
+
+    def keypoints(G: torch.Tensor, x: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
+        kp = sparse_kp(G, x, row_person)
+        if cfg.calibrate_landmarks:
+            kp = kp + (G[:, dom] @ offsets[row_person][..., None])[..., 0]
+        return kp
+
+    def evaluate(use_2d: bool) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        delta, pose, root, offsets, shape_u = unscale()
+        heads = set_shape(shape_u)
+        G_root = rotmat_rows(delta) @ R0_t
+        full = torch.cat([roma.rotmat_to_rotvec(G_root)[:, None], pose], dim=1)
+        G, x = forward_kinematics_rootmat(body, G_root, pose, root, heads)
+        kp = keypoints(G, x, offsets)
+        out: dict[str, torch.Tensor] = {}
+        out["3d"] = cfg.w_3d * (w3d * (kp - kp3d).square().sum(-1)).sum()
+        if use_2d and cfg.w_2d > 0:
+            h = torch.einsum("vij,nkj->vnki", P_t[:, :, :3], kp) + P_t[:, None, None, :, 3]
+            proj = h[..., :2] / h[..., 2:].clamp(min=1e-3)
+            r2 = (proj - uv).square().sum(-1)
+            s2 = cfg.gm_sigma_px**2
+            rho = s2 * r2 / (s2 + r2) if cfg.robust_2d == "gm" else r2
+            out["2d"] = cfg.w_2d * (w2d * rho).sum()
+        out["reg"] = cfg.w_reg * pose.square().sum()
+        if moments is not None and nf > 1:
+            pz = pose.reshape(npers, nf, nb - 1, 3)
+            gz = G_root.reshape(npers, nf, 3, 3)
+            sm = (pz[:, 1:] - pz[:, :-1]).square().sum() + 0.5 * (gz[:, 1:] - gz[:, :-1]).square().sum()
+            t = x - (G @ heads[..., None])[..., 0]
+            A = torch.cat([G, t[..., None]], dim=-1).reshape(npers, nf, nb, 3, 4)
+            sm = sm + moments(A[:, 1:] - A[:, :-1])
+            out["smooth"] = cfg.w_smooth * sm
+        if cfg.w_accel > 0 and nf > 2:
+            kz = kp.reshape(npers, nf, nj, 3)
+            a2 = (kz[:, 2:] - 2 * kz[:, 1:-1] + kz[:, :-2]).square().sum(-1)
+            if cfg.accel_scale_m > 0:  # pseudo-Huber: quadratic for jitter, linear for punches
+                d2 = cfg.accel_scale_m**2
+                a2 = 2 * d2 * (torch.sqrt(1 + a2 / d2) - 1)
+            out["accel"] = cfg.w_accel * a2.sum()
+        if cfg.calibrate_landmarks:
+            out["landmarks"] = cfg.w_landmarks * offsets.square().sum()
+        if cfg.refine_shape:
+            out["shape"] = 1e-4 * (torch.sigmoid(shape_u) - 0.5).square().sum()
+        out["limits"] = cfg.w_limits * joint_limit_penalty(full, frames, lo, hi)
+        if prior is not None and cfg.w_prior > 0:
+            out["prior"] = cfg.w_prior * prior(pose.reshape(n, -1))
+        if cfg.w_ground > 0:
+            sole_z = soles(G, x, row_person)[..., 2]
+            below = torch.relu(-kp[:, foot, 2]).square().sum() + torch.relu(-sole_z).square().sum()
+            out["ground"] = cfg.w_ground * below
+        return sum(out.values()), out  # type: ignore[return-value]
+
+    run_lbfgs(params, lambda: evaluate(False)[0], cfg.pose_iters_3d, cfg)
+    if cfg.use_2d:
+        run_lbfgs(params, lambda: evaluate(True)[0], cfg.pose_iters, cfg)
+    timings["pose_s"] = time.perf_counter() - t0
+    timings["pose_cpu_s"] = time.process_time() - c0
+
+    with torch.no_grad():
+        total, parts = evaluate(cfg.use_2d)
+        terms = {k: float(v) for k, v in parts.items()}
+        delta, pose, root, offsets, shape_u = unscale()
+        heads = set_shape(shape_u)
+        shape = torch.sigmoid(shape_u) if cfg.refine_shape else shape
+        G_root = rotmat_rows(delta) @ R0_t
+        full = torch.cat([roma.rotmat_to_rotvec(G_root)[:, None], pose], dim=1)
+        G, x = forward_kinematics_rootmat(body, G_root, pose, root, heads)
+        kp = keypoints(G, x, offsets)
+        per_person = _per_person_loss(kp, kp3d, w3d, npers, nf)
+    logger.info("anny fit: %d persons x %d frames, loss %.4g %s, %s", npers, nf, float(total), terms, timings)
+    return AnnyFitOutput(
+        bone_names=body.bone_names,
+        shape=shape.numpy(),
+        pose_aa=full.reshape(npers, nf, nb, 3).permute(1, 0, 2, 3).numpy().copy(),
+        root_m=root.reshape(npers, nf, 3).permute(1, 0, 2).numpy().copy(),
+        keypoints_m=kp.reshape(npers, nf, nj, 3).permute(1, 0, 2, 3).numpy().copy(),
+        present=present,
+        loss=per_person,
+        timings_s=timings,
+        loss_terms=terms,
+    )
+
+
+def _per_person_loss(
+    kp: torch.Tensor, kp3d: torch.Tensor, w3d: torch.Tensor, npers: int, nf: int
+) -> np.ndarray:
+    """Mean confidence-weighted 3D distance (m) of each person's fit, a comparable summary."""
+    d = (kp - kp3d).norm(dim=-1).reshape(npers, nf, -1)
+    w = w3d.reshape(npers, nf, -1)
+    return ((d * w).sum(dim=(1, 2)) / w.sum(dim=(1, 2)).clamp(min=1e-9)).numpy()

@@ -1,0 +1,211 @@
+"""Stage ``fit``: a parametric body model per athlete from 2D and 3D keypoints (paper 3.3).
+
+Pure: ``run(keypoints3d, tracks, association, rig, cfg) -> FitResult``. The heavy work
+(torch, anny) happens in ``pipeline.backends.anny_fit``, imported when ``run`` is called.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.geometry.projection import undistort_points
+from pipeline.schema.association import Association
+from pipeline.schema.camera import CameraRig
+from pipeline.schema.detections import Tracks2D
+from pipeline.schema.joints import COCO17_FEET
+from pipeline.schema.keypoints3d import Keypoints3D
+from pipeline.schema.results import BodyFit
+from pipeline.stages.fit_config import FitConfig
+
+__all__ = ["FitConfig", "FitResult", "PersonInputs", "gather_inputs", "run"]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PersonInputs:
+    """One person's observations in ``COCO17_FEET`` order (numpy; see ``gather_inputs``).
+
+    kp3d_m (frames, 23, 3), w3d (frames, 23), uv_px (views, frames, 23, 2) undistorted,
+    w2d (views, frames, 23): confidence where usable, 0 elsewhere.
+    """
+
+    kp3d_m: np.ndarray
+    w3d: np.ndarray
+    uv_px: np.ndarray
+    w2d: np.ndarray
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """Output of the stage: the fit, its keypoints (``source="fit"``) and summary metrics."""
+
+    bodyfit: BodyFit
+    keypoints3d: Keypoints3D
+    metrics: dict[str, float] = field(default_factory=dict)
+
+
+def _joint_map(names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (src, dst) of the joints of ``names`` that are in ``COCO17_FEET``."""
+    pairs = [(i, COCO17_FEET.index(n)) for i, n in enumerate(names) if n in COCO17_FEET]
+    if not pairs:
+        raise ValueError(f"fit: no joint of {names} is in COCO17_FEET")
+    src, dst = zip(*pairs, strict=True)
+    return np.array(src), np.array(dst)
+
+
+def gather_inputs(
+    keypoints3d: Keypoints3D, tracks: Tracks2D, association: Association, rig: CameraRig, cfg: FitConfig
+) -> list[PersonInputs]:
+    """Per-person 3D targets and undistorted 2D keypoints of every view, aligned on
+    ``keypoints3d.frame_indices``. Detections of frames outside them are ignored; when a
+    person has several detections in one view and frame, the highest-scoring one is used."""
+    if association.person_of_det.shape[0] != tracks.n_dets:
+        raise ValueError(
+            f"fit: association has {association.person_of_det.shape[0]} rows but tracks have {tracks.n_dets}"
+        )
+    if tracks.n_views != rig.n_views:
+        raise ValueError(f"fit: tracks have {tracks.n_views} views but the rig has {rig.n_views}")
+    nf, nj, nv = keypoints3d.n_frames, len(COCO17_FEET), rig.n_views
+    s3, d3 = _joint_map(keypoints3d.joint_names)
+    s2, d2 = _joint_map(tracks.joint_names)
+    rows = np.searchsorted(keypoints3d.frame_indices, tracks.frame)
+    rows_ok = (rows < nf) & (keypoints3d.frame_indices[np.minimum(rows, nf - 1)] == tracks.frame)
+    undist = np.zeros_like(tracks.keypoints_px, dtype=np.float64)
+    for v in range(nv):
+        sel = tracks.view == v
+        if sel.any():
+            undist[sel] = undistort_points(tracks.keypoints_px[sel], rig.K[v], rig.dist[v])
+    out = []
+    for p, pid in enumerate(keypoints3d.person_ids):
+        kp3d = np.zeros((nf, nj, 3))
+        w3d = np.zeros((nf, nj))
+        kp3d[:, d3] = np.where(keypoints3d.valid[:, p, s3, None], keypoints3d.xyz_m[:, p][:, s3], 0.0)
+        w3d[:, d3] = np.where(
+            keypoints3d.valid[:, p, s3], np.clip(keypoints3d.confidence[:, p, s3], 0, 1), 0.0
+        )
+        uv = np.zeros((nv, nf, nj, 2))
+        w2d = np.zeros((nv, nf, nj))
+        dets = np.flatnonzero((association.person_of_det == pid) & rows_ok)
+        dets = dets[np.argsort(tracks.bbox_score[dets], kind="stable")]  # best written last
+        for i in dets:
+            v, f = tracks.view[i], rows[i]
+            conf = tracks.keypoint_conf[i, s2]
+            ok = (
+                tracks.keypoint_valid[i, s2]
+                & (conf > cfg.min_conf_2d)
+                & np.all(np.isfinite(undist[i, s2]), axis=-1)
+            )
+            uv[v, f, d2] = np.where(ok[:, None], undist[i, s2], 0.0)
+            w2d[v, f, d2] = np.where(ok, conf, 0.0)
+        out.append(PersonInputs(kp3d_m=kp3d, w3d=w3d, uv_px=uv, w2d=w2d))
+    return out
+
+
+def _reprojection_px(kp: np.ndarray, inp: PersonInputs, P: np.ndarray) -> np.ndarray:
+    """(frames, joints) mean pixel error over the views with a usable 2D keypoint (NaN if none)."""
+    h = np.einsum("vij,fkj->vfki", P[:, :, :3], kp) + P[:, None, None, :, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        proj = h[..., :2] / h[..., 2:]
+        err = np.linalg.norm(proj - inp.uv_px, axis=-1)
+    used = inp.w2d > 0
+    n = used.sum(axis=0)
+    with np.errstate(invalid="ignore"):
+        return np.where(n > 0, np.where(used, err, 0.0).sum(axis=0) / np.maximum(n, 1), np.nan)
+
+
+def run(
+    keypoints3d: Keypoints3D,
+    tracks: Tracks2D,
+    association: Association,
+    rig: CameraRig,
+    cfg: FitConfig = FitConfig(),
+) -> FitResult:
+    """Fit the body model to every person of ``keypoints3d`` (one shape per person, one pose
+    and root translation per frame). Raises ``ValueError`` for inconsistent inputs and, for
+    SMPL/SMPL-X, when the ``smplx`` package or the model files are missing."""
+    t_start = time.perf_counter()
+    if cfg.body_model != "anny":
+        from pipeline.backends.smpl_body import check_smpl_available
+
+        check_smpl_available(cfg.body_model, cfg.body_model_path)
+        raise ValueError(
+            f"fit: body_model={cfg.body_model!r} model files were found, but fitting SMPL/SMPL-X is not "
+            "implemented in this version; use body_model='anny'"
+        )
+    inputs = gather_inputs(keypoints3d, tracks, association, rig, cfg)
+    present = np.stack([(i.w3d > 0).sum(axis=1) >= cfg.min_valid_joints for i in inputs], axis=1)  # (F, P)
+    fit_persons = [p for p in range(len(inputs)) if present[:, p].sum() >= 2]
+    nf, npers, nj = keypoints3d.n_frames, keypoints3d.n_persons, len(COCO17_FEET)
+
+    from pipeline.backends.anny_fit import PersonObservations, fit_anny
+    from pipeline.backends.anny_model import anny_body
+
+    body = anny_body(cfg.rig)
+    nb = body.n_bones
+    shape = np.full((npers, 6), 0.5)
+    pose = np.zeros((nf, npers, nb, 3))
+    root = np.zeros((nf, npers, 3))
+    kp = np.zeros((nf, npers, nj, 3))
+    loss = np.full(npers, np.nan)
+    metrics: dict[str, float] = {}
+    if fit_persons:
+        obs = [
+            PersonObservations(inputs[p].kp3d_m, inputs[p].w3d, inputs[p].uv_px, inputs[p].w2d)
+            for p in fit_persons
+        ]
+        res = fit_anny(obs, rig.P, cfg, body)
+        for k, p in enumerate(fit_persons):
+            shape[p], pose[:, p], root[:, p], kp[:, p], loss[p] = (
+                res.shape[k],
+                res.pose_aa[:, k],
+                res.root_m[:, k],
+                res.keypoints_m[:, k],
+                res.loss[k],
+            )
+        metrics.update({f"time_{k}": round(v, 3) for k, v in res.timings_s.items()})
+        metrics.update({f"loss_{k}": round(v, 6) for k, v in res.loss_terms.items()})
+    valid = present.copy()
+    valid[:, [p for p in range(npers) if p not in fit_persons]] = False
+
+    reproj = np.full((nf, npers, nj), np.nan)
+    for p in fit_persons:
+        reproj[:, p] = _reprojection_px(kp[:, p], inputs[p], rig.P)
+    bodyfit = BodyFit(
+        body_model="anny",
+        rig=cfg.rig,
+        bone_names=body.bone_names,
+        person_ids=keypoints3d.person_ids.copy(),
+        frame_indices=keypoints3d.frame_indices.copy(),
+        fps=keypoints3d.fps,
+        shape=shape,
+        pose=pose,
+        root_translation_m=root,
+        valid=valid,
+        loss_final=loss,
+    )
+    fitted = Keypoints3D(
+        joint_names=COCO17_FEET,
+        person_ids=keypoints3d.person_ids.copy(),
+        frame_indices=keypoints3d.frame_indices.copy(),
+        fps=keypoints3d.fps,
+        xyz_m=kp,
+        valid=np.repeat(valid[:, :, None], nj, axis=2),
+        confidence=np.repeat(valid[:, :, None], nj, axis=2).astype(np.float64),
+        n_views=np.zeros((nf, npers, nj), dtype=np.int64),
+        reproj_err_px=reproj,
+        source="fit",
+    )
+    used = valid[:, :, None] & np.isfinite(reproj)
+    summary: dict[str, float] = {
+        "reproj_err_px": round(float(reproj[used].mean()), 3) if used.any() else float("nan"),
+        "residual_3d_mm": round(float(np.nanmean(loss) * 1000), 2) if fit_persons else float("nan"),
+        "persons_fitted": len(fit_persons),
+        "frames_valid_pct": round(100.0 * float(valid.mean()), 1),
+        "time_total_s": round(time.perf_counter() - t_start, 3),
+    }
+    return FitResult(bodyfit=bodyfit, keypoints3d=fitted, metrics={**summary, **metrics})

@@ -1,0 +1,136 @@
+"""Configuration of the kinematic body-model fit (stage ``fit``); defaults in one place."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Body-model fit of every athlete over the whole sequence (paper section 3.3, eq. 3).
+
+    Loss weights default to the paper's (w1..w6 = 0.001, 1.0, 0.01, 0.001, 1e-4, 1e-4); the
+    terms we add (keypoint acceleration, joint limits, ground, landmark offsets) are documented
+    per field. Their defaults were tuned with ``cornerman bench fit`` on the synthetic bout.
+    """
+
+    body_model: Literal["anny", "smpl", "smplx"] = "anny"
+    """Parametric body model. anny ships with the package; SMPL/SMPL-X need the user's model
+    files (``body_model_path``) and the ``smplx`` package."""
+
+    body_model_path: str = ""
+    """SMPL/SMPL-X only: folder holding ``smpl/SMPL_{NEUTRAL,MALE,FEMALE}.pkl`` or
+    ``smplx/SMPLX_{NEUTRAL,MALE,FEMALE}.npz`` (the layout of ``smplx.create``)."""
+
+    rig: str = "anny-nohands-notoes-noeyes"
+    """anny rig: the default rig without fingers, toes and eyes (36 bones)."""
+
+    min_conf_2d: float = 0.7
+    """2D keypoints with confidence at or below this are ignored (paper: 0.7)."""
+
+    w_2d: float = 1e-3
+    """w1: confidence-weighted Geman-McClure reprojection error over every view (pixels^2)."""
+
+    w_3d: float = 1.0
+    """w2: confidence-weighted squared distance to the triangulated joints (m^2)."""
+
+    w_reg: float = 0.01
+    """w3: squared magnitude of the non-root bone rotations (rad^2)."""
+
+    w_smooth: float = 1e-3
+    """w4: squared pose change plus squared whole-mesh vertex displacement between
+    consecutive frames (rad^2 + m^2 summed over all vertices; exact, via folded moments)."""
+
+    w_accel: float = 500.0
+    """Squared second difference of the fitted keypoints (m^2 per frame^2; ours, not in the
+    paper): damps frame-to-frame jitter without slowing the motion down like ``w_smooth``."""
+
+    accel_scale_m: float = 0.005
+    """Scale of a pseudo-Huber penalty on those second differences (m per frame^2): below it
+    the penalty is quadratic (jitter), above it linear (genuine fast accelerations such as
+    punches are penalised less). 0 = plain squared penalty."""
+
+    calibrate_landmarks: bool = True
+    """Estimate one constant offset per person and keypoint, rigid in the keypoint's bone
+    frame: absorbs the difference between the detector's landmark definitions and anny's
+    regressor (e.g. where a "hip" or "shoulder" keypoint sits). The fitted keypoints include
+    it; the mesh does not."""
+
+    refine_shape: bool = True
+    """Refine the shape jointly with the poses in the pose passes (after its bone-length
+    initialisation): lengths from noisy 3D are biased, the 2D views correct them."""
+
+    w_landmarks: float = 10.0
+    """Squared norm of those landmark offsets (m^2)."""
+
+    w_prior: float = 1e-4
+    """w5: statistical pose prior (negative log-likelihood of a user-provided GMM over the
+    rig's pose; unused when ``pose_prior_path`` is empty)."""
+
+    w_limits: float = 1.0
+    """Soft anatomical joint limits: squared excess rotation beyond per-bone ranges (rad^2)."""
+
+    w_ground: float = 1e4
+    """Squared depth below the ground plane z = 0 of the foot keypoints and of 48 sole
+    vertices of the mesh (m^2)."""
+
+    gm_sigma_px: float = 25.0
+    """Scale of the Geman-McClure function: residuals much larger than this barely count."""
+
+    robust_2d: Literal["gm", "l2"] = "gm"
+    """Reprojection penalty: Geman-McClure (paper) or plain squared error (for comparison)."""
+
+    use_2d: bool = True
+    """Include the reprojection term (the 3D term alone is much cheaper but less accurate)."""
+
+    pose_prior_path: str = ""
+    """Optional GMM pose prior (npz with ``means`` (K, D), ``precisions`` (K, D, D) and
+    ``weights`` (K,) over the flattened non-root pose of ``rig``). Empty: joint limits only."""
+
+    shape_iters: int = 60
+    """L-BFGS iterations of the shape initialisation from bone lengths."""
+
+    pose_iters_3d: int = 30
+    """L-BFGS iterations of the first pose pass (3D term, priors and smoothness only)."""
+
+    pose_iters: int = 150
+    """L-BFGS iterations of the full pass (eq. 3)."""
+
+    lbfgs_history: int = 100
+    """L-BFGS history size (paper: 100)."""
+
+    lbfgs_lr: float = 1.0
+    """L-BFGS learning rate (paper: 1.0); the line search is strong Wolfe."""
+
+    min_valid_joints: int = 4
+    """A person counts as present in a frame with at least this many valid triangulated
+    joints; other frames are filled by the smoothness term and marked invalid."""
+
+    threads: int = 1
+    """torch intra-op threads during the fit (restored afterwards; 0: torch's default). The
+    tensors are small (frames x 36 bones), so extra threads gain little, and on a shared
+    2-core machine an oversubscribed OpenMP pool made the fit ~10x slower."""
+
+    def __post_init__(self) -> None:
+        for name in (
+            "w_2d",
+            "w_3d",
+            "w_reg",
+            "w_smooth",
+            "w_accel",
+            "w_landmarks",
+            "w_prior",
+            "w_limits",
+            "w_ground",
+        ):
+            if getattr(self, name) < 0:
+                raise ValueError(f"FitConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if self.accel_scale_m < 0:
+            raise ValueError(f"FitConfig.accel_scale_m must be >= 0, got {self.accel_scale_m}")
+        if self.gm_sigma_px <= 0:
+            raise ValueError(f"FitConfig.gm_sigma_px must be positive, got {self.gm_sigma_px}")
+        if not 0 <= self.min_conf_2d < 1:
+            raise ValueError(f"FitConfig.min_conf_2d must be in [0, 1), got {self.min_conf_2d}")
+        if min(self.shape_iters, self.pose_iters_3d, self.pose_iters) < 0 or self.lbfgs_history < 1:
+            raise ValueError("FitConfig: iteration counts must be >= 0 and lbfgs_history >= 1")

@@ -1,0 +1,239 @@
+"""Stage ``fit``: recovery of a known anny body, robustness to an outlier view, SMPL errors.
+
+Ground truth comes from anny itself (``make_anny_motion``), so a noise-free fit can be exact.
+The anny model is built once per process (``anny_body`` cache; ~2 s with a warm cache).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.geometry import project
+from pipeline.schema import COCO17_FEET, Association, CameraRig, Keypoints3D, Tracks2D
+from pipeline.stages.fit import FitConfig, FitResult, gather_inputs, run
+
+pytest.importorskip("torch")
+pytest.importorskip("anny")
+
+from pipeline.backends.anny_fk import forward_kinematics  # noqa: E402
+from pipeline.backends.anny_model import anny_body  # noqa: E402
+from pipeline.backends.anny_synthetic import AnnyMotion, make_anny_motion  # noqa: E402
+
+FPS = 50.0
+
+
+def _rig(n_views: int = 4) -> CameraRig:
+    from pipeline.geometry.rotations import look_at_T_world_cam
+
+    Ts = []
+    for i in range(n_views):
+        a = 2 * np.pi * i / n_views + 0.4
+        Ts.append(
+            look_at_T_world_cam(np.array([6 * np.cos(a), 6 * np.sin(a), 2.5]), np.array([0.0, 0.0, 1.0]))
+        )
+    return CameraRig(
+        names=tuple(f"cam{i}" for i in range(n_views)),
+        K=np.tile(np.array([[1100.0, 0, 640], [0, 1100.0, 360], [0, 0, 1]]), (n_views, 1, 1)),
+        dist=np.zeros((n_views, 5)),
+        T_world_cam=np.stack(Ts),
+        image_size_wh=np.tile([1280, 720], (n_views, 1)),
+        fps=FPS,
+    )
+
+
+def _inputs(
+    rig: CameraRig, motions: list[AnnyMotion], noise_3d_m: float = 0.0, noise_px: float = 0.0, seed: int = 0
+) -> tuple[Keypoints3D, Tracks2D, Association]:
+    rng = np.random.default_rng(seed)
+    xyz = np.stack([m.keypoints_m for m in motions], axis=1)  # (F, P, J, 3)
+    nf, npers, nj = xyz.shape[:3]
+    kp3d = Keypoints3D(
+        joint_names=COCO17_FEET,
+        person_ids=np.arange(npers),
+        frame_indices=np.arange(nf),
+        fps=FPS,
+        xyz_m=xyz + rng.normal(0, noise_3d_m, xyz.shape) if noise_3d_m else xyz.copy(),
+        valid=np.ones((nf, npers, nj), dtype=bool),
+        confidence=np.full((nf, npers, nj), 0.9),
+        n_views=np.full((nf, npers, nj), rig.n_views),
+        reproj_err_px=np.zeros((nf, npers, nj)),
+        source="filtered",
+    )
+    uv, _ = project(rig, xyz)  # (V, F, P, J, 2)
+    if noise_px:
+        uv = uv + rng.normal(0, noise_px, uv.shape)
+    nv = rig.n_views
+    view, frame, person = (
+        a.ravel() for a in np.meshgrid(np.arange(nv), np.arange(nf), np.arange(npers), indexing="ij")
+    )
+    kp = uv[view, frame, person]
+    tracks = Tracks2D(
+        joint_names=COCO17_FEET,
+        n_views=nv,
+        n_frames=nf,
+        view=view.astype(np.int64),
+        frame=frame.astype(np.int64),
+        bbox_xyxy_px=np.concatenate([kp.min(axis=1), kp.max(axis=1)], axis=1),
+        bbox_score=np.full(view.size, 0.9),
+        keypoints_px=kp,
+        keypoint_conf=np.full((view.size, nj), 0.95),
+        keypoint_valid=np.ones((view.size, nj), dtype=bool),
+        track_id=person.astype(np.int64),
+    )
+    assoc = Association(
+        person_ids=np.arange(npers),
+        person_names=("",) * npers,
+        person_of_det=person.astype(np.int64),
+        confidence=np.ones(view.size),
+    )
+    return kp3d, tracks, assoc
+
+
+@pytest.fixture(scope="session")
+def motion() -> AnnyMotion:
+    return make_anny_motion(12, fps=FPS, seed=3)
+
+
+def _joint_centres(shape: np.ndarray, pose: np.ndarray, root: np.ndarray) -> np.ndarray:
+    import torch
+
+    body = anny_body()
+    with torch.no_grad():
+        coeffs = body.shape_coeffs(torch.as_tensor(shape, dtype=torch.float64)[None])
+        heads = body.rest_heads(coeffs)
+        _, x = forward_kinematics(body, torch.as_tensor(pose), torch.as_tensor(root), heads)
+    return x.numpy()
+
+
+def test_recovers_known_shape_and_pose_from_clean_keypoints(motion: AnnyMotion) -> None:
+    rig = _rig(4)
+    kp3d, tracks, assoc = _inputs(rig, [motion])
+    # regularisers (which bias a fit of exact data) nearly off
+    cfg = FitConfig(
+        calibrate_landmarks=False, w_accel=0.0, w_smooth=1e-6, w_reg=1e-5, shape_iters=100, pose_iters=150
+    )
+    res = run(kp3d, tracks, assoc, rig, cfg)
+    assert isinstance(res, FitResult)
+    fit = res.keypoints3d
+    assert fit.source == "fit" and fit.valid.all()
+    err = np.linalg.norm(fit.xyz_m[:, 0] - motion.keypoints_m, axis=-1)
+    assert err.mean() < 0.004 and err.max() < 0.015
+    # the skeleton itself (joint centres of every bone, i.e. shape and pose) is recovered
+    bf = res.bodyfit
+    got = _joint_centres(bf.shape[0], bf.pose[:, 0], bf.root_translation_m[:, 0])
+    want = _joint_centres(motion.shape, motion.pose_aa, motion.root_m)
+    assert np.linalg.norm(got - want, axis=-1).mean() < 0.01
+    assert np.abs(bf.root_translation_m[:, 0] - motion.root_m).max() < 0.02
+    assert res.metrics["reproj_err_px"] < 2.0
+
+
+def test_robust_loss_ignores_an_outlier_view(motion: AnnyMotion) -> None:
+    rig = _rig(4)
+    kp3d, tracks, assoc = _inputs(rig, [motion], noise_3d_m=0.03, seed=1)
+    bad = tracks.view == 2
+    kp = tracks.keypoints_px.copy()
+    kp[bad] += np.array([90.0, -60.0])  # a whole view shifted: e.g. a wrong calibration
+    shifted = Tracks2D(**{**tracks.__dict__, "keypoints_px": kp})
+    errors = {}
+    for name, trk, robust in (("clean", tracks, "gm"), ("gm", shifted, "gm"), ("l2", shifted, "l2")):
+        cfg = FitConfig(robust_2d=robust, gm_sigma_px=20.0)
+        res = run(kp3d, trk, assoc, rig, cfg)
+        errors[name] = float(np.linalg.norm(res.keypoints3d.xyz_m[:, 0] - motion.keypoints_m, axis=-1).mean())
+    assert errors["clean"] < 0.01
+    assert errors["gm"] < errors["clean"] + 0.003  # the bad view is (nearly) ignored
+    assert errors["l2"] > 5 * errors["gm"]  # a plain squared loss is dragged by it
+
+
+def test_gather_inputs_maps_views_persons_and_threshold(motion: AnnyMotion) -> None:
+    rig = _rig(3)
+    kp3d, tracks, assoc = _inputs(rig, [motion, motion])
+    conf = tracks.keypoint_conf.copy()
+    conf[:, COCO17_FEET.index("nose")] = 0.5  # below the paper's 0.7
+    tracks = Tracks2D(**{**tracks.__dict__, "keypoint_conf": conf})
+    inp = gather_inputs(kp3d, tracks, assoc, rig, FitConfig())
+    assert len(inp) == 2 and inp[1].uv_px.shape == (3, 12, 23, 2)
+    uv, _ = project(rig, motion.keypoints_m)
+    np.testing.assert_allclose(inp[1].uv_px[:, :, 1:], uv[:, :, 1:], atol=1e-9)
+    assert np.all(inp[0].w2d[:, :, COCO17_FEET.index("nose")] == 0)
+    assert np.all(inp[0].w2d[:, :, 1:] == pytest.approx(0.95))
+
+
+def test_missing_person_frames_are_marked_invalid(motion: AnnyMotion) -> None:
+    rig = _rig(3)
+    kp3d, tracks, assoc = _inputs(rig, [motion])
+    valid = kp3d.valid.copy()
+    valid[4:6] = False
+    kp3d = kp3d.replace(valid=valid)
+    res = run(kp3d, tracks, assoc, rig, FitConfig(pose_iters=20, pose_iters_3d=20))
+    assert not res.bodyfit.valid[4:6, 0].any() and res.bodyfit.valid[:4, 0].all()
+    assert np.all(np.isfinite(res.bodyfit.pose)) and np.all(
+        np.isfinite(res.keypoints3d.xyz_m[res.keypoints3d.valid])
+    )
+
+
+@pytest.mark.parametrize("model", ["smpl", "smplx"])
+def test_smpl_path_errors_clearly_without_files(model: str, tmp_path: Path, motion: AnnyMotion) -> None:
+    rig = _rig(2)
+    kp3d, tracks, assoc = _inputs(rig, [motion])
+    with pytest.raises(ValueError, match="body-model-path"):
+        run(kp3d, tracks, assoc, rig, FitConfig(body_model=model))
+    expected = "SMPL_NEUTRAL.pkl" if model == "smpl" else "SMPLX_NEUTRAL.npz"
+    with pytest.raises(ValueError, match=expected):
+        run(kp3d, tracks, assoc, rig, FitConfig(body_model=model, body_model_path=str(tmp_path)))
+    with pytest.raises(ValueError, match="not a folder"):
+        run(kp3d, tracks, assoc, rig, FitConfig(body_model=model, body_model_path=str(tmp_path / "nope")))
+
+
+def test_smpl_path_names_the_missing_package(tmp_path: Path, motion: AnnyMotion) -> None:
+    import importlib.util
+
+    if importlib.util.find_spec("smplx") is not None:
+        pytest.skip("smplx is installed here")
+    (tmp_path / "smpl").mkdir()
+    (tmp_path / "smpl" / "SMPL_NEUTRAL.pkl").write_bytes(b"placeholder")
+    rig = _rig(2)
+    kp3d, tracks, assoc = _inputs(rig, [motion])
+    with pytest.raises(ValueError, match="pip install smplx"):
+        run(kp3d, tracks, assoc, rig, FitConfig(body_model="smpl", body_model_path=str(tmp_path)))
+
+
+def test_config_validation() -> None:
+    with pytest.raises(ValueError, match="w_2d"):
+        FitConfig(w_2d=-1.0)
+    with pytest.raises(ValueError, match="min_conf_2d"):
+        FitConfig(min_conf_2d=1.5)
+
+
+@pytest.mark.slow
+def test_fit_step_runs_in_the_runner(tmp_path: Path) -> None:
+    from pipeline.runner.core import run as run_session
+    from pipeline.schema import BodyFit, load_npz
+    from pipeline.synthetic import SyntheticConfig, make_demo_session
+
+    session = tmp_path / "bout"
+    make_demo_session(session, SyntheticConfig(n_frames=30, n_cameras=3, seed=2))
+    run_session(session, to_stage="fit")
+    fit = load_npz(session / "artifacts" / "fit" / "bodyfit.npz", BodyFit)
+    kp = load_npz(session / "artifacts" / "fit" / "keypoints3d.npz", Keypoints3D)
+    assert fit.body_model == "anny" and fit.pose.shape == (30, 2, len(fit.bone_names), 3)
+    assert kp.source == "fit" and kp.valid.mean() > 0.9
+    tri = load_npz(session / "artifacts" / "triangulate" / "keypoints3d.npz", Keypoints3D)
+    ok = kp.valid & tri.valid
+    assert np.linalg.norm(kp.xyz_m - tri.xyz_m, axis=-1)[ok].mean() < 0.05
+
+
+def test_user_pose_prior_is_loaded_and_used(tmp_path: Path, motion: AnnyMotion) -> None:
+    from pipeline.backends.anny_priors import pose_prior_from_poses
+
+    more = make_anny_motion(60, fps=FPS, seed=5)
+    prior = pose_prior_from_poses(more.pose_aa[:, None], np.ones((60, 1), dtype=bool), n_components=2)
+    prior.save(tmp_path / "prior.npz")
+    rig = _rig(3)
+    kp3d, tracks, assoc = _inputs(rig, [motion])
+    res = run(kp3d, tracks, assoc, rig, FitConfig(pose_prior_path=str(tmp_path / "prior.npz"), pose_iters=20))
+    assert "loss_prior" in res.metrics and np.isfinite(res.metrics["loss_prior"])
+    with pytest.raises(ValueError, match="GMM"):
+        run(kp3d, tracks, assoc, rig, FitConfig(pose_prior_path=str(tmp_path / "missing.npz")))
