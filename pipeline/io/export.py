@@ -96,7 +96,7 @@ def export_keypoints3d(kp: Keypoints3D, fmt: ExportFormat, names: dict[int, str]
         return json.dumps(keypoints3d_to_json(kp, names), separators=(",", ":")).encode()
     if fmt == "npz":
         buf = io.BytesIO()
-        np.savez_compressed(buf, **to_arrays(kp))
+        np.savez_compressed(buf, **to_arrays(kp))  # type: ignore[arg-type]  # numpy stub, see schema.base
         return buf.getvalue()
     raise ValueError(f"unknown export format {fmt!r}; supported: json, npz")
 

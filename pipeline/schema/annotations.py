@@ -15,7 +15,7 @@ import hashlib
 import json
 from dataclasses import MISSING, asdict, dataclass, fields
 from pathlib import Path
-from typing import Literal, Union
+from typing import Literal
 
 AnnotationKind = Literal[
     "assign_identity", "swap_identities", "split_track", "merge_tracks", "mark_invalid", "fix_keypoint", "label_contact"
@@ -103,7 +103,7 @@ class LabelContact:
     kind: str = "label_contact"
 
 
-Annotation = Union[AssignIdentity, SwapIdentities, SplitTrack, MergeTracks, MarkInvalid, FixKeypoint, LabelContact]
+Annotation = AssignIdentity | SwapIdentities | SplitTrack | MergeTracks | MarkInvalid | FixKeypoint | LabelContact
 
 ANNOTATION_TYPES: dict[str, type] = {
     "assign_identity": AssignIdentity,

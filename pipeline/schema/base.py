@@ -115,7 +115,7 @@ def from_arrays(cls: type[T], arrays: dict[str, np.ndarray]) -> T:
 def save_npz(path: str | Path, obj: Any) -> None:
     """Write a schema dataclass to ``path`` as an uncompressed npz (no pickle)."""
     buf = io.BytesIO()
-    np.savez(buf, **to_arrays(obj))
+    np.savez(buf, **to_arrays(obj))  # type: ignore[arg-type]  # numpy's stub types **kwds like allow_pickle
     Path(path).write_bytes(buf.getvalue())
 
 

@@ -6,11 +6,11 @@ import json
 from pathlib import Path
 
 import numpy as np
-from tests.server.conftest import auth, make_bout, run_jobs
 from fastapi.testclient import TestClient
 
 from server.core.config import Settings
 from server.demo import available_stages, make_session
+from tests.server.conftest import auth, make_bout, run_jobs
 
 
 def test_health_needs_no_token(client: TestClient) -> None:

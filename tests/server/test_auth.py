@@ -6,10 +6,10 @@ import os
 from pathlib import Path
 
 import pytest
-from tests.server.conftest import auth, make_bout
 from fastapi.testclient import TestClient
 
 from server.core.config import Settings
+from tests.server.conftest import auth, make_bout
 
 ROLE_ORDER = {"coach": 0, "annotator": 1, "admin": 2}
 

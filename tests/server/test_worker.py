@@ -6,12 +6,12 @@ import threading
 import time
 from pathlib import Path
 
-from tests.server.conftest import auth, make_bout
 from fastapi.testclient import TestClient
 
 from server.core.config import Settings
 from server.jobs.worker import Worker, resume_plan
 from server.models import Job
+from tests.server.conftest import auth, make_bout
 
 ORDER = ["detect2d", "track", "associate", "triangulate"]
 

@@ -6,11 +6,11 @@ import dataclasses
 
 import numpy as np
 import pytest
-from tests.stages.mv_fixtures import Scene, make_scene
 
 from pipeline.evaluate.metrics import identity_accuracy
 from pipeline.schema import AssignIdentity, MarkInvalid, SwapIdentities
 from pipeline.stages.associate import AssociateConfig, run
+from tests.stages.mv_fixtures import Scene, make_scene
 
 
 def _subset(s: Scene, keep: np.ndarray) -> Scene:

@@ -7,12 +7,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tests.stages.mv_fixtures import make_scene
 
 from pipeline.evaluate.metrics import mpjpe, pcp, reprojection_error
 from pipeline.schema import Association
 from pipeline.stages.filtering import FilterConfig
 from pipeline.stages.triangulate import TriangulateConfig, run, summary
+from tests.stages.mv_fixtures import make_scene
 
 
 def _gt_assoc(gt_pod: np.ndarray) -> Association:
