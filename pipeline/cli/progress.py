@@ -13,13 +13,14 @@ from pipeline.runner import StageReport
 # The one metric per stage shown in the summary table (first key present wins).
 KEY_METRICS: dict[str, tuple[str, ...]] = {
     "detect2d": ("detections", "valid_keypoints_pct"),
-    "track": ("tracks",),
-    "associate": ("identity_accuracy_pct", "persons", "mean_confidence"),
-    "triangulate": ("median_reproj_px", "valid_pct"),
-    "fit": ("mpjpe_vs_triangulation_mm", "loss_final"),
-    "physics": ("penetration_max_mm", "real_time_factor"),
-    "evaluate": ("mpjpe_mm", "pcp_pct"),
+    "track": ("tracks", "edits_applied"),
+    "associate": ("persons", "mean_confidence", "edits_applied"),
+    "triangulate": ("median_reproj_err_px", "mean_views"),
+    "fit": ("residual_3d_mm", "reproj_err_px"),
+    "physics": ("mujoco_inter_penetration_max_mm", "realtime_factor", "residual_force_mean_frac_bw"),
+    "evaluate": ("identity_accuracy_pct", "mpjpe_mm_filtered", "mpjpe_mm_fit", "mpjpe_mm_physics"),
 }
+"""The metrics shown per stage in the summary table (those present, in this order)."""
 
 
 class RichProgress:
@@ -64,15 +65,16 @@ class RichProgress:
         self.progress.update(self.tasks[stage], completed=total, total=total, message="fresh, skipped" if status == "skipped" else "done")
 
 
+def _fmt(v: Any) -> str:
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
 def key_metric(stage: str, metrics: dict[str, Any]) -> str:
-    for k in KEY_METRICS.get(stage, ()):
-        if k in metrics:
-            v = metrics[k]
-            return f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
-    if metrics:
-        k, v = next(iter(metrics.items()))
-        return f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
-    return ""
+    """Up to four of the stage's key metrics as ``name = value`` pairs."""
+    keys = [k for k in KEY_METRICS.get(stage, ()) if k in metrics][:4]
+    if not keys and metrics:
+        keys = [next(iter(metrics))]
+    return ", ".join(f"{k} = {_fmt(metrics[k])}" for k in keys)
 
 
 def summary_table(reports: list[StageReport]) -> Table:

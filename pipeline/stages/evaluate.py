@@ -136,11 +136,12 @@ def problem_flags(inp: EvaluateInputs, cfg: EvaluateConfig) -> ProblemFlags:
     reproj = np.zeros(F)
     tri = inp.sources.get("filtered") or inp.sources.get("raw")
     if tri is not None:
-        err = M.reprojection_error(tri, inp.tracks, inp.association, inp.rig)  # (dets, joints)
-        med = np.where(np.isfinite(err).any(axis=1), np.nanmedian(np.where(np.isfinite(err), err, np.nan), axis=1), np.nan) if err.size else np.zeros(0)
-        rows = np.array([row_of.get(int(f), -1) for f in inp.tracks.frame]) if err.size else np.zeros(0, int)
-        ok = (rows >= 0) & np.isfinite(med) if err.size else np.zeros(0, bool)
-        if ok.any():
+        err = M.reprojection_error(tri, inp.tracks, inp.association, inp.rig)  # (dets, joints), NaN = n/a
+        has = np.isfinite(err).any(axis=1) if err.size else np.zeros(0, bool)
+        if has.any():
+            med = np.nanmedian(err[has], axis=1)  # rows with at least one finite error only
+            rows = np.array([row_of.get(int(f), -1) for f in inp.tracks.frame[has]])
+            ok = rows >= 0
             np.maximum.at(reproj, rows[ok], med[ok])
     pen = capsule_penetration_mm(best, cfg.body_radius_m)
     flags = np.stack([id_min < cfg.identity_conf_low, reproj > cfg.reproj_high_px, pen > cfg.penetration_high_mm], axis=1)

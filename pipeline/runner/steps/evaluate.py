@@ -54,10 +54,10 @@ def _execute(ctx: StageContext, cfg: EvaluateConfig) -> dict[str, Any]:
     )
     metrics, flags = run(inp, cfg)
     best = list(sources)[-1]
-    summary = metrics["sources"][best]
-    for k in ("mpjpe_mm", "pcp_pct", "accel_error_mm_per_frame2"):
-        if summary.get(k) is not None:
-            ctx.metrics[k] = summary[k]
+    for name, m in metrics["sources"].items():
+        for k in ("mpjpe_mm", "pcp_pct", "accel_error_mm_per_frame2"):
+            if m.get(k) is not None:
+                ctx.metrics[f"{k}_{name}"] = m[k]
     if "identity_accuracy_pct" in metrics:
         ctx.metrics["identity_accuracy_pct"] = metrics["identity_accuracy_pct"]
     ctx.metrics["evaluated_source"] = best
