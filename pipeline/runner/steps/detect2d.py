@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -26,6 +26,26 @@ class Detect2DStepConfig:
 
     min_keypoint_conf: float = 0.0
     """Keypoints below this confidence are marked invalid on import."""
+    detector: Literal["rtmdet_nano", "yolox_nano", "yolox_s", "yolox_m"] = "rtmdet_nano"
+    """Video source: person detector (``cornerman models list``)."""
+    pose_model: Literal[
+        "blazepose_full", "movenet_lightning", "rtmpose_m", "rtmpose_l", "vitpose_b", "vitpose_l", "vitpose_h"
+    ] = "blazepose_full"
+    """Video source: top-down keypoint model."""
+    models_dir: str | None = None
+    """Video source: folder searched first for model files (else CORNERMAN_MODELS_DIR, then the cache)."""
+    det_score_thr: float = 0.3
+    """Video source: person boxes below this score are dropped."""
+    max_persons: int = 12
+    """Video source: at most this many people per frame."""
+    batch_size: int = 8
+    """Video source: frames per detector call."""
+    frame_step: int = 1
+    """Video source: process every n-th frame."""
+    max_frames: int = 0
+    """Video source: stop after this many frames per camera (0 = all)."""
+    num_threads: int = 0
+    """Video source: onnxruntime threads (0 = all cores)."""
 
 
 def _input_files(ctx: StageContext) -> list[Path]:
@@ -59,9 +79,20 @@ def _execute(ctx: StageContext, cfg: Detect2DStepConfig) -> dict[str, Any]:
             # Tracked keypoints (OpenPose person_id / COCO track_id): keep their ids.
             out["source_tracks"] = {"track_id": ids.astype(np.int64)}
     else:
-        from pipeline.stages.detect2d import run_videos
+        from pipeline.stages.detect2d import Detect2DConfig, run_videos
 
-        dets = run_videos({k: ctx.resolve(v) for k, v in s.videos.items()}, ctx.rig, ctx.progress)
+        vcfg = Detect2DConfig(
+            detector=cfg.detector,
+            pose_model=cfg.pose_model,
+            models_dir=str(ctx.resolve(cfg.models_dir)) if cfg.models_dir else None,
+            det_score_thr=cfg.det_score_thr,
+            max_persons=cfg.max_persons,
+            batch_size=cfg.batch_size,
+            frame_step=cfg.frame_step,
+            max_frames=cfg.max_frames,
+            num_threads=cfg.num_threads,
+        )
+        dets = run_videos({k: ctx.resolve(v) for k, v in s.videos.items()}, ctx.rig, ctx.progress, vcfg)
         out = {"detections": dets}
     if cfg.min_keypoint_conf > 0:
         low = dets.keypoint_conf < cfg.min_keypoint_conf

@@ -1,0 +1,228 @@
+"""2D stage on videos: a person detector, then a top-down keypoint model on each box.
+
+``run_videos`` streams each camera's video (never all frames in memory), detects
+people in batches of frames, estimates ``COCO17_FEET`` keypoints per box (joints the
+model does not provide are invalid) and returns flat ``Detections2D`` rows.
+onnxruntime is only imported through ``pipeline.backends`` when ``run_videos`` runs.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from pipeline.schema.camera import CameraRig
+from pipeline.schema.detections import Detections2D
+from pipeline.schema.joints import COCO17_FEET
+
+log = logging.getLogger(__name__)
+
+ProgressFn = Callable[[float, float | None, str], None]
+
+
+@dataclass(frozen=True)
+class Detect2DConfig:
+    """Models and thresholds of the video 2D stage."""
+
+    detector: Literal["rtmdet_nano", "yolox_nano", "yolox_s", "yolox_m"] = "rtmdet_nano"
+    """Person detector (registry name; see ``cornerman models list``)."""
+    pose_model: Literal[
+        "blazepose_full", "movenet_lightning", "rtmpose_m", "rtmpose_l", "vitpose_b", "vitpose_l", "vitpose_h"
+    ] = "blazepose_full"
+    """Top-down keypoint model; only BlazePose provides heels and big toes."""
+    models_dir: str | None = None
+    """Folder searched first for the model files (else ``$CORNERMAN_MODELS_DIR``, then the cache)."""
+    det_score_thr: float = 0.3
+    """Person boxes below this detector score are dropped."""
+    nms_iou: float = 0.45
+    """IoU above which overlapping boxes are suppressed (YOLOX; RTMDet does NMS in-graph)."""
+    max_persons: int = 12
+    """At most this many boxes per frame (best scores first)."""
+    min_box_height_frac: float = 0.05
+    """Boxes shorter than this fraction of the image height are dropped (far-away people)."""
+    det_input_size: int = 0
+    """Square detector input side in pixels; 0 = the registry's size for that model."""
+    batch_size: int = 8
+    """Frames per detector call (models with a fixed batch of 1 run them one by one)."""
+    crop_scale: float = 1.25
+    """Side of the keypoint crop relative to the box's longer side."""
+    upright_crops: bool = True
+    """BlazePose: re-run tilted people on a crop rotated upright (hips→shoulders)."""
+    min_keypoint_conf: float = 0.0
+    """Keypoints below this confidence are marked invalid."""
+    frame_step: int = 1
+    """Process every n-th frame (frame indices keep the video's numbering)."""
+    max_frames: int = 0
+    """Stop after this many video frames per camera (0 = whole video)."""
+    num_threads: int = 0
+    """onnxruntime intra-op threads (0 = all cores)."""
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """Detections of one frame: ``boxes (n, 4)``, ``scores (n,)``, ``kp (n, J, 2)``, ``conf``/``valid (n, J)``."""
+
+    boxes: np.ndarray
+    scores: np.ndarray
+    kp: np.ndarray
+    conf: np.ndarray
+    valid: np.ndarray
+
+
+class Models:
+    """The loaded detector and keypoint model of a ``Detect2DConfig``."""
+
+    def __init__(self, cfg: Detect2DConfig) -> None:
+        from pipeline.backends.onnx_detectors import DetectorParams, make_detector
+        from pipeline.backends.onnx_pose import PoseParams, make_pose_estimator
+        from pipeline.registry import get_model, resolve_model
+
+        det_info, pose_info = get_model(cfg.detector), get_model(cfg.pose_model)
+        if det_info.task != "detector" or pose_info.task != "pose":
+            raise ValueError(f"detector={cfg.detector!r} / pose_model={cfg.pose_model!r}: wrong model kinds")
+        size = cfg.det_input_size or det_info.input_size_hw[0]
+        self.detector = make_detector(
+            det_info.decoder,
+            resolve_model(cfg.detector, cfg.models_dir),
+            DetectorParams(cfg.det_score_thr, cfg.nms_iou, cfg.max_persons, (size, size), cfg.num_threads),
+        )
+        self.pose = make_pose_estimator(
+            pose_info.decoder,
+            resolve_model(cfg.pose_model, cfg.models_dir),
+            PoseParams(crop_scale=cfg.crop_scale, upright=cfg.upright_crops, num_threads=cfg.num_threads),
+        )
+
+
+def detect_boxes(
+    images: list[np.ndarray], models: Models, cfg: Detect2DConfig
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Person boxes per image after the size filter."""
+    out = []
+    for im, (b, s) in zip(images, models.detector.detect(images), strict=True):
+        keep = (b[:, 3] - b[:, 1]) >= cfg.min_box_height_frac * im.shape[0]
+        out.append((b[keep], s[keep]))
+    return out
+
+
+def process_frames(images: list[np.ndarray], models: Models, cfg: Detect2DConfig) -> list[FrameResult]:
+    """Detect people and estimate their keypoints on a batch of BGR frames."""
+    res = []
+    for im, (b, s) in zip(images, detect_boxes(images, models, cfg), strict=True):
+        kp, conf, valid = models.pose.estimate(im, b)
+        valid = valid & (conf >= cfg.min_keypoint_conf) & np.isfinite(kp).all(axis=2)
+        res.append(FrameResult(b, s, kp, conf, valid))
+    return res
+
+
+def run_videos(
+    videos: dict[str, Path],
+    rig: CameraRig,
+    progress: ProgressFn | None = None,
+    cfg: Detect2DConfig = Detect2DConfig(),
+) -> Detections2D:
+    """Detections of every camera's video.
+
+    Args:
+        videos: camera name → video file; the names must be exactly the rig's.
+        rig: the calibration (defines the view order).
+        progress: ``progress(done_frames, total_frames, message)``.
+        cfg: models and thresholds.
+
+    Raises ``ValueError`` naming the camera for a name not in the rig or a rig camera
+    without a video, and naming the file for a missing/corrupt/empty video or model.
+    A camera where nobody is detected gets a logged warning and no rows.
+    """
+    from pipeline.io.video import iter_frames, video_info
+
+    unknown = [k for k in videos if k not in rig.names]
+    if unknown:
+        raise ValueError(f"videos for camera(s) {unknown} that are not in the calibration {list(rig.names)}")
+    missing = [n for n in rig.names if n not in videos]
+    if missing:
+        raise ValueError(f"no video for camera(s) {missing} of the calibration")
+    if cfg.frame_step < 1 or cfg.batch_size < 1:
+        raise ValueError(f"frame_step={cfg.frame_step} and batch_size={cfg.batch_size} must be >= 1")
+    infos = {n: video_info(Path(videos[n])) for n in rig.names}
+    stop = {
+        n: (min(i.n_frames, cfg.max_frames) if cfg.max_frames > 0 else i.n_frames) for n, i in infos.items()
+    }
+    total = float(sum(len(range(0, s, cfg.frame_step)) for s in stop.values()))
+    models = Models(cfg)
+    rows: dict[str, list[Any]] = {k: [] for k in ("view", "frame", "box", "score", "kp", "conf", "valid")}
+    done, n_frames = 0, 0
+    for v, name in enumerate(rig.names):
+        info = infos[name]
+        w, h = (int(x) for x in rig.image_size_wh[v])
+        if (info.width_px, info.height_px) != (w, h):
+            log.warning(
+                "camera %s: video %s is %dx%d but the calibration says %dx%d",
+                name, info.path, info.width_px, info.height_px, w, h,
+            )  # fmt: skip
+        if info.fps > 0 and abs(info.fps - rig.fps) > 0.01 * rig.fps:
+            log.warning(
+                "camera %s: video %s is %.3g fps but the rig says %.3g fps (set the session's fps)",
+                name, info.path, info.fps, rig.fps,
+            )  # fmt: skip
+        n_view = 0
+        frames = iter_frames(info.path, 0, cfg.max_frames if cfg.max_frames > 0 else None, cfg.frame_step)
+        for item in _chunks(frames, cfg.batch_size):
+            idx = [i for i, _ in item]
+            for fi, r in zip(idx, process_frames([im for _, im in item], models, cfg), strict=True):
+                n = len(r.boxes)
+                n_view += n
+                rows["view"].append(np.full(n, v))
+                rows["frame"].append(np.full(n, fi))
+                for k, a in (
+                    ("box", r.boxes),
+                    ("score", r.scores),
+                    ("kp", r.kp),
+                    ("conf", r.conf),
+                    ("valid", r.valid),
+                ):
+                    rows[k].append(a)
+            n_frames = max(n_frames, idx[-1] + 1)
+            done += len(idx)
+            if progress is not None:
+                progress(float(done), total, f"{name}: frame {idx[-1] + 1}/{stop[name]}")
+        if n_view == 0:
+            log.warning(
+                "camera %s (%s): no person detected in any frame; this view has no detections",
+                name,
+                info.path,
+            )
+    J = len(COCO17_FEET)
+
+    def cat(k: str, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
+        return np.concatenate(rows[k]).astype(dtype) if rows[k] else np.zeros(shape, dtype)
+
+    valid = cat("valid", (0, J), bool)
+    kp = np.where(valid[..., None], cat("kp", (0, J, 2), np.float64), 0.0)
+    conf = np.where(valid, np.clip(cat("conf", (0, J), np.float64), 0.0, 1.0), 0.0)
+    return Detections2D(
+        joint_names=COCO17_FEET,
+        n_views=rig.n_views,
+        n_frames=max(n_frames, 1),
+        view=cat("view", (0,), np.int64),
+        frame=cat("frame", (0,), np.int64),
+        bbox_xyxy_px=cat("box", (0, 4), np.float64),
+        bbox_score=cat("score", (0,), np.float64),
+        keypoints_px=kp,
+        keypoint_conf=conf,
+        keypoint_valid=valid,
+    )
+
+
+def _chunks(it: Any, n: int) -> Any:
+    buf: list[Any] = []
+    for x in it:
+        buf.append(x)
+        if len(buf) == n:
+            yield buf
+            buf = []
+    if buf:
+        yield buf
