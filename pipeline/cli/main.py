@@ -43,7 +43,7 @@ def _setup_logging(verbose: bool) -> None:
 
 
 def _fail(msg: str) -> None:
-    console.print(f"[bold red]error:[/] {msg}")
+    console.print(f"[bold red]error:[/] {msg}", soft_wrap=True)
     raise typer.Exit(code=2)
 
 
@@ -133,34 +133,22 @@ def status(session: Annotated[Path, typer.Argument(help="Session folder.")]) -> 
 def export(
     session: Annotated[Path, typer.Argument(help="Session folder.")],
     format: Annotated[str, typer.Option("--format", "-f", help="json or npz.")] = "json",
-    source: Annotated[str, typer.Option(help="Which 3D result: filtered, raw, fit or physics (default: the latest available).")] = "",
+    source: Annotated[str, typer.Option(help="best (fit, else filtered), latest (physics, else fit, else filtered), raw, filtered, fit or physics.")] = "best",
     out: Annotated[Path | None, typer.Option("--out", "-o", help="Output file.")] = None,
 ) -> None:
     """Export 3D keypoints (JSON as documented in the README, or NPZ)."""
-    from pipeline.artifacts import ArtifactStore
-    from pipeline.io.export import write_export
-    from pipeline.schema import Keypoints3D, SessionConfig
+    from pipeline.io.export import find_keypoints3d, write_export
+    from pipeline.schema import SessionConfig
 
-    where = {"raw": ("triangulate", "raw"), "filtered": ("triangulate", "keypoints3d"), "fit": ("fit", "keypoints3d"), "physics": ("physics", "keypoints3d")}
     try:
         if format not in ("json", "npz"):
             raise ValueError(f"--format must be json or npz, got {format!r}")
         cfg = SessionConfig.load(session)
-        store = ArtifactStore(session)
-        if source:
-            if source not in where:
-                raise ValueError(f"--source must be one of {sorted(where)}, got {source!r}")
-            candidates = [source]
-        else:
-            candidates = ["physics", "fit", "filtered"]
-        chosen = next((s for s in candidates if store.has(where[s][0], where[s][1] + ".npz")), None)
-        if chosen is None:
-            raise ValueError(f"{session}: no 3D result ({', '.join(candidates)}) yet; run `cornerman run {session}` first")
-        kp = store.load(*where[chosen], Keypoints3D)
+        kp, chosen = find_keypoints3d(session, source)
         names = {i: n for i, n in enumerate(cfg.athletes)}
         path = out or (session / f"keypoints3d_{chosen}.{format}")
         write_export(kp, format, path, names)  # type: ignore[arg-type]
-    except ValueError as e:
+    except (ValueError, LookupError) as e:
         _fail(str(e))
         return
     console.print(f"wrote {path} ({chosen}, {kp.n_frames} frames, {kp.n_persons} persons)")

@@ -35,6 +35,43 @@ from pipeline.schema.keypoints3d import Keypoints3D
 ExportFormat = Literal["json", "npz"]
 JSON_FORMAT_ID = "cornerman.keypoints3d/v1"
 
+KEYPOINTS3D_ARTIFACTS: dict[str, tuple[str, str]] = {
+    "raw": ("triangulate", "raw"),
+    "triangulation": ("triangulate", "raw"),
+    "filtered": ("triangulate", "keypoints3d"),
+    "fit": ("fit", "keypoints3d"),
+    "physics": ("physics", "keypoints3d"),
+}
+"""3D result name -> (stage, artifact) holding its ``Keypoints3D``."""
+
+SOURCE_ORDER: dict[str, tuple[str, ...]] = {
+    # The most accurate result available. Physics is left out until it tracks the
+    # kinematic input within its accuracy target (see `cornerman bench physics`).
+    "best": ("fit", "filtered"),
+    # The last stage that produced keypoints.
+    "latest": ("physics", "fit", "filtered"),
+}
+KeypointSource = Literal["best", "latest", "raw", "triangulation", "filtered", "fit", "physics"]
+
+
+def find_keypoints3d(session_dir: Path, source: str = "best") -> tuple[Keypoints3D, str]:
+    """Load the 3D keypoints of ``source`` from a session; returns them and the source chosen.
+
+    ``LookupError`` when no candidate stage has produced them yet; ``ValueError`` for an
+    unknown source name.
+    """
+    from pipeline.artifacts import ArtifactStore
+
+    if source not in SOURCE_ORDER and source not in KEYPOINTS3D_ARTIFACTS:
+        raise ValueError(f"unknown 3D source {source!r}; choose one of {sorted([*SOURCE_ORDER, *KEYPOINTS3D_ARTIFACTS])}")
+    candidates = SOURCE_ORDER.get(source, (source,))
+    store = ArtifactStore(session_dir)
+    for cand in candidates:
+        stage, name = KEYPOINTS3D_ARTIFACTS[cand]
+        if store.has(stage, f"{name}.npz"):
+            return store.load(stage, name, Keypoints3D), cand
+    raise LookupError(f"{session_dir}: no 3D keypoints ({', '.join(candidates)}) yet; run the session's stages first")
+
 
 def keypoints3d_to_json(kp: Keypoints3D, names: dict[int, str] | None = None) -> dict[str, Any]:
     """The README's JSON export as a dict (coordinates rounded to 0.1 mm)."""

@@ -8,37 +8,21 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, HTTPException, Query, status
 from fastapi.responses import FileResponse, Response
 
+from pipeline.io.export import KeypointSource
 from server import crud
 from server.api.deps import CurrentUser, SessionDep, bout_dir, get_bout_or_404
 from server.storage import safe_filename
 
 router = APIRouter(prefix="/sessions/{session_id}", tags=["results"])
 
-# source -> (stage, artifact) of a Keypoints3D, as ``cornerman export`` reads them.
-KEYPOINTS3D: dict[str, tuple[str, str]] = {
-    "raw": ("triangulate", "raw"),
-    "triangulation": ("triangulate", "raw"),
-    "filtered": ("triangulate", "keypoints3d"),
-    "fit": ("fit", "keypoints3d"),
-    "physics": ("physics", "keypoints3d"),
-}
-LATEST_FIRST: tuple[str, ...] = ("physics", "fit", "filtered")
-Source = Literal["latest", "raw", "triangulation", "filtered", "fit", "physics"]
+Source = KeypointSource  # the same choices as ``cornerman export --source``
 
 
 def find_keypoints3d(session_dir: Path, source: str) -> tuple[Any, str]:
-    """The ``Keypoints3D`` of ``source`` (``latest``: physics, else fit, else filtered) and the
-    source chosen. ``LookupError`` when the stage has not produced it yet."""
-    from pipeline.artifacts import ArtifactStore
-    from pipeline.schema.keypoints3d import Keypoints3D
+    """The ``Keypoints3D`` of ``source`` and the source chosen (see ``pipeline.io.export``)."""
+    from pipeline.io.export import find_keypoints3d as find
 
-    store = ArtifactStore(session_dir)
-    candidates = LATEST_FIRST if source == "latest" else (source,)
-    for cand in candidates:
-        stage, name = KEYPOINTS3D[cand]
-        if store.has(stage, f"{name}.npz"):
-            return store.load(stage, name, Keypoints3D), cand
-    raise LookupError(f"no 3D keypoints ({', '.join(candidates)}) yet: run the session's stages first")
+    return find(session_dir, source)
 
 
 @router.get("/results/keypoints3d")
@@ -46,7 +30,7 @@ def download_keypoints3d(
     db: SessionDep,
     _: CurrentUser,
     session_id: int,
-    source: Annotated[Source, Query(description="latest = physics, else fit, else filtered")] = "latest",
+    source: Annotated[Source, Query(description="best = fit, else filtered; latest = physics, else fit, else filtered")] = "best",
     format: Annotated[Literal["json", "npz"], Query()] = "json",
 ) -> Response:
     """3D keypoints of every athlete (metres, world z-up) as the README's JSON or an NPZ."""

@@ -1,0 +1,44 @@
+"""The typer CLI on a tiny session: run, status, export, bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from pipeline.cli.main import app
+from tests.conftest import write_tiny_session
+
+runner = CliRunner()
+
+
+def test_run_status_and_errors(tmp_path: Path) -> None:
+    s = write_tiny_session(tmp_path / "s", stages=("detect2d", "track", "associate", "triangulate"))
+    r = runner.invoke(app, ["run", str(s)])
+    assert r.exit_code == 0, r.output
+    assert "cornerman pipeline summary" in r.output and "triangulate" in r.output
+    r = runner.invoke(app, ["status", str(s)])
+    assert r.exit_code == 0 and r.output.count("fresh") == 4
+    r = runner.invoke(app, ["export", str(s), "--format", "json", "-o", str(tmp_path / "kp.json")])
+    assert r.exit_code == 0, r.output
+    d = json.loads((tmp_path / "kp.json").read_text())
+    assert d["source"] == "filtered" and len(d["persons"]) == 2 and len(d["persons"][0]["joints"]) == 20
+    r = runner.invoke(app, ["export", str(s), "--source", "physics"])
+    assert r.exit_code == 2 and "no 3D keypoints" in r.output
+    r = runner.invoke(app, ["run", str(tmp_path / "nowhere")])
+    assert r.exit_code == 2 and "no session.json" in r.output
+
+
+def test_new_session_validates_paths(tmp_path: Path) -> None:
+    r = runner.invoke(app, ["new", str(tmp_path / "b"), "--calibration", str(tmp_path / "missing.toml"), "--video", "c1=x.mp4"])
+    assert r.exit_code == 2 and "calibration not found" in r.output
+    calib = tmp_path / "c.toml"
+    calib.write_text("")
+    r = runner.invoke(app, ["new", str(tmp_path / "b"), "--calibration", str(calib), "--video", "c1=nope.mp4"])
+    assert r.exit_code == 2 and "nope.mp4 does not exist" in r.output
+
+
+def test_bench_unknown_name() -> None:
+    r = runner.invoke(app, ["bench", "quantum"])
+    assert r.exit_code == 2 and "unknown benchmark" in r.output
