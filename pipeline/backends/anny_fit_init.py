@@ -13,7 +13,7 @@ import torch
 
 from pipeline.backends.anny_fk import SparseKeypoints, forward_kinematics, keypoints_from_bones
 from pipeline.backends.anny_model import AnnyBody
-from pipeline.schema.joints import COCO17_FEET
+from pipeline.schema.joints import BODY_LIMBS, COCO17_FEET
 from pipeline.stages.fit_config import FitConfig
 
 # (driver bone, child keypoint): the bone is swung so that the keypoint points at its target.
@@ -32,19 +32,7 @@ IK_DRIVERS: tuple[tuple[str, str], ...] = (
 
 
 # Limbs whose length is (nearly) pose independent, used for the shape initialisation.
-SHAPE_LIMBS: tuple[tuple[str, str], ...] = (
-    ("left_shoulder", "left_elbow"),
-    ("right_shoulder", "right_elbow"),
-    ("left_elbow", "left_wrist"),
-    ("right_elbow", "right_wrist"),
-    ("left_hip", "left_knee"),
-    ("right_hip", "right_knee"),
-    ("left_knee", "left_ankle"),
-    ("right_knee", "right_ankle"),
-    ("left_shoulder", "right_shoulder"),
-    ("left_hip", "right_hip"),
-    ("left_shoulder", "left_hip"),
-    ("right_shoulder", "right_hip"),
+SHAPE_LIMBS: tuple[tuple[str, str], ...] = BODY_LIMBS + (
     ("left_ankle", "left_heel"),
     ("right_ankle", "right_heel"),
     ("left_heel", "left_big_toe"),

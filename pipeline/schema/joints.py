@@ -58,6 +58,10 @@ PCP_LIMBS: tuple[tuple[str, str], ...] = (
     ("left_hip", "right_hip"),
 )
 
+# The PCP limbs plus both torso sides: the segments whose lengths are (nearly) pose
+# independent (shape initialisation, re-identification, capsule proxies).
+BODY_LIMBS: tuple[tuple[str, str], ...] = PCP_LIMBS + (("left_shoulder", "left_hip"), ("right_shoulder", "right_hip"))
+
 # Bones used for drawing and for bone-length consistency.
 BONES: tuple[tuple[str, str], ...] = (
     ("nose", "left_eye"),

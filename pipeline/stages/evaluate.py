@@ -88,9 +88,9 @@ def capsule_penetration_mm(kp: Keypoints3D, radius_m: float) -> np.ndarray:
     A keypoint-only proxy used when no physics result exists: every limb is a capsule
     of ``radius_m`` around its bone.
     """
-    from pipeline.schema.joints import PCP_LIMBS, bone_indices
+    from pipeline.schema.joints import BODY_LIMBS, bone_indices
 
-    bones = np.array(bone_indices(kp.joint_names, PCP_LIMBS + (("left_shoulder", "left_hip"), ("right_shoulder", "right_hip"))))
+    bones = np.array(bone_indices(kp.joint_names, BODY_LIMBS))
     F = kp.n_frames
     out = np.zeros(F)
     if kp.n_persons < 2 or bones.size == 0:

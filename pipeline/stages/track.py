@@ -23,6 +23,7 @@ from scipy.optimize import linear_sum_assignment
 
 from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Detections2D, Tracks2D
+from pipeline.schema.joints import BODY_LIMBS
 
 # COCO keypoint OKS sigmas; the foot points reuse the ankle's.
 _COCO_SIGMAS = {
@@ -33,20 +34,7 @@ _COCO_SIGMAS = {
 }  # fmt: skip
 
 # Limbs whose length ratios form the re-identification embedding.
-_EMBED_LIMBS: tuple[tuple[str, str], ...] = (
-    ("left_shoulder", "right_shoulder"),
-    ("left_hip", "right_hip"),
-    ("left_shoulder", "left_hip"),
-    ("right_shoulder", "right_hip"),
-    ("left_shoulder", "left_elbow"),
-    ("right_shoulder", "right_elbow"),
-    ("left_elbow", "left_wrist"),
-    ("right_elbow", "right_wrist"),
-    ("left_hip", "left_knee"),
-    ("right_hip", "right_knee"),
-    ("left_knee", "left_ankle"),
-    ("right_knee", "right_ankle"),
-)
+_EMBED_LIMBS: tuple[tuple[str, str], ...] = BODY_LIMBS
 
 
 @dataclass(frozen=True)
