@@ -248,30 +248,44 @@ class _MMPoseTopDown:
         raise NotImplementedError  # abstract: each subclass decodes its own output layout
 
     def estimate(self, image: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        xy_out, conf_out, valid_out = _empty(len(boxes))
-        if len(boxes) == 0:
-            return xy_out, conf_out, valid_out
-        rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+        return self.estimate_many([image], [boxes])[0]
+
+    def estimate_many(
+        self, images: list[np.ndarray], boxes: list[np.ndarray], max_batch: int = 64
+    ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Like ``estimate`` for several frames (e.g. all views of a time step): the crops of
+        every person in every frame go through the network in batches of ``max_batch``."""
         H, W = self.input_hw
-        Ms = [crop_transform_rect(b, (W, H), self.params.crop_scale) for b in boxes]
-        crops = np.stack([cv2.warpAffine(rgb, M, (W, H), flags=cv2.INTER_LINEAR) for M in Ms]).astype(
-            np.float32
-        )
-        x = ((crops - self.MEAN) / self.STD).transpose(0, 3, 1, 2)
-        chunk = 1 if self.fixed_batch else len(boxes)
+        Ms: list[np.ndarray] = []
+        crops: list[np.ndarray] = []
+        for image, bxs in zip(images, boxes, strict=True):
+            if len(bxs) == 0:
+                continue
+            rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+            for b in bxs:
+                M = crop_transform_rect(b, (W, H), self.params.crop_scale)
+                Ms.append(M)
+                crops.append(cv2.warpAffine(rgb, M, (W, H), flags=cv2.INTER_LINEAR))
         xys, scores = [], []
-        for s in range(0, len(boxes), chunk):
-            xy, sc = self._decode(
-                self.sess.run(None, {self.input_name: np.ascontiguousarray(x[s : s + chunk])})
-            )
+        chunk = 1 if self.fixed_batch else max(1, max_batch)
+        for s in range(0, len(crops), chunk):
+            x = ((np.stack(crops[s : s + chunk]).astype(np.float32) - self.MEAN) / self.STD).transpose(0, 3, 1, 2)
+            xy, sc = self._decode(self.sess.run(None, {self.input_name: np.ascontiguousarray(x)}))
             xys.append(xy)
             scores.append(sc)
-        xy, sc = np.concatenate(xys), np.concatenate(scores)
-        for i, M in enumerate(Ms):
-            xy_out[i, _COCO17_IN_FEET] = apply_inverse(M, xy[i, :17])
-            conf_out[i, _COCO17_IN_FEET] = np.clip(sc[i, :17], 0.0, 1.0)
-            valid_out[i, _COCO17_IN_FEET] = True
-        return xy_out, conf_out, valid_out
+        out = []
+        k = 0
+        for bxs in boxes:
+            xy_out, conf_out, valid_out = _empty(len(bxs))
+            for i in range(len(bxs)):
+                M = Ms[k]
+                xy, sc = xys[k // chunk][k % chunk], scores[k // chunk][k % chunk]
+                xy_out[i, _COCO17_IN_FEET] = apply_inverse(M, xy[:17])
+                conf_out[i, _COCO17_IN_FEET] = np.clip(sc[:17], 0.0, 1.0)
+                valid_out[i, _COCO17_IN_FEET] = True
+                k += 1
+            out.append((xy_out, conf_out, valid_out))
+        return out
 
 
 class HeatmapEstimator(_MMPoseTopDown):
@@ -291,6 +305,17 @@ class SimCCEstimator(_MMPoseTopDown):
     def _decode(self, outputs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         sx, sy = outputs[0], outputs[1]
         return decode_simcc(sx, sy, split_ratio=sx.shape[2] / self.input_hw[1])
+
+
+def estimate_many(
+    est: PoseEstimator, images: list[np.ndarray], boxes: list[np.ndarray]
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Keypoints for the boxes of several frames; batched across frames when the model
+    accepts a dynamic batch (mmpose-style exports), else one crop at a time."""
+    many = getattr(est, "estimate_many", None)
+    if many is not None:
+        return many(images, boxes)
+    return [est.estimate(im, b) for im, b in zip(images, boxes, strict=True)]
 
 
 def make_pose_estimator(kind: str, path: Path, params: PoseParams) -> PoseEstimator:

@@ -47,8 +47,10 @@ class Detect2DConfig:
     """Boxes shorter than this fraction of the image height are dropped (far-away people)."""
     det_input_size: int = 0
     """Square detector input side in pixels; 0 = the registry's size for that model."""
-    batch_size: int = 8
-    """Frames per detector call (models with a fixed batch of 1 run them one by one)."""
+    batch_size: int = 4
+    """Frames per camera per step: every camera's next ``batch_size`` frames are detected in
+    one call and their person crops batched (models with a fixed batch of 1 run them one
+    by one). Memory holds ``batch_size × cameras`` frames at most."""
     crop_scale: float = 1.25
     """Side of the keypoint crop relative to the box's longer side."""
     upright_crops: bool = True
@@ -111,9 +113,11 @@ def detect_boxes(
 
 def process_frames(images: list[np.ndarray], models: Models, cfg: Detect2DConfig) -> list[FrameResult]:
     """Detect people and estimate their keypoints on a batch of BGR frames."""
+    from pipeline.backends.onnx_pose import estimate_many
+
+    dets = detect_boxes(images, models, cfg)
     res = []
-    for im, (b, s) in zip(images, detect_boxes(images, models, cfg), strict=True):
-        kp, conf, valid = models.pose.estimate(im, b)
+    for (b, s), (kp, conf, valid) in zip(dets, estimate_many(models.pose, images, [b for b, _ in dets]), strict=True):
         valid = valid & (conf >= cfg.min_keypoint_conf) & np.isfinite(kp).all(axis=2)
         res.append(FrameResult(b, s, kp, conf, valid))
     return res
@@ -155,6 +159,7 @@ def run_videos(
     models = Models(cfg)
     rows: dict[str, list[Any]] = {k: [] for k in ("view", "frame", "box", "score", "kp", "conf", "valid")}
     done, n_frames = 0, 0
+    n_view = [0] * rig.n_views
     for v, name in enumerate(rig.names):
         info = infos[name]
         w, h = (int(x) for x in rig.image_size_wh[v])
@@ -168,32 +173,43 @@ def run_videos(
                 "camera %s: video %s is %.3g fps but the rig says %.3g fps (set the session's fps)",
                 name, info.path, info.fps, rig.fps,
             )  # fmt: skip
-        n_view = 0
-        frames = iter_frames(info.path, 0, cfg.max_frames if cfg.max_frames > 0 else None, cfg.frame_step)
-        for item in _chunks(frames, cfg.batch_size):
-            idx = [i for i, _ in item]
-            for fi, r in zip(idx, process_frames([im for _, im in item], models, cfg), strict=True):
-                n = len(r.boxes)
-                n_view += n
-                rows["view"].append(np.full(n, v))
-                rows["frame"].append(np.full(n, fi))
-                for k, a in (
-                    ("box", r.boxes),
-                    ("score", r.scores),
-                    ("kp", r.kp),
-                    ("conf", r.conf),
-                    ("valid", r.valid),
-                ):
-                    rows[k].append(a)
-            n_frames = max(n_frames, idx[-1] + 1)
-            done += len(idx)
-            if progress is not None:
-                progress(float(done), total, f"{name}: frame {idx[-1] + 1}/{stop[name]}")
-        if n_view == 0:
+    # All cameras advance in lockstep, ``batch_size`` frames each per step, so that the
+    # detector and keypoint batches span views and only one step's frames are in memory.
+    streams = {
+        v: _chunks(
+            iter_frames(infos[n].path, 0, cfg.max_frames if cfg.max_frames > 0 else None, cfg.frame_step),
+            cfg.batch_size,
+        )
+        for v, n in enumerate(rig.names)
+    }
+    while streams:
+        step: list[tuple[int, int, np.ndarray]] = []
+        for v in list(streams):
+            chunk = next(streams[v], None)
+            if chunk is None:
+                del streams[v]
+                continue
+            step += [(v, i, im) for i, im in chunk]
+        if not step:
+            break
+        results = process_frames([im for _, _, im in step], models, cfg)
+        for (v, fi, _), r in zip(step, results, strict=True):
+            n = len(r.boxes)
+            n_view[v] += n
+            rows["view"].append(np.full(n, v))
+            rows["frame"].append(np.full(n, fi))
+            for k, a in (("box", r.boxes), ("score", r.scores), ("kp", r.kp), ("conf", r.conf), ("valid", r.valid)):
+                rows[k].append(a)
+            n_frames = max(n_frames, fi + 1)
+        done += len(step)
+        if progress is not None:
+            progress(float(done), total, f"frame {max(fi for _, fi, _ in step) + 1}/{max(stop.values())}")
+    for v, name in enumerate(rig.names):
+        if n_view[v] == 0:
             log.warning(
                 "camera %s (%s): no person detected in any frame; this view has no detections",
                 name,
-                info.path,
+                infos[name].path,
             )
     J = len(COCO17_FEET)
 

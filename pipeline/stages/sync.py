@@ -156,3 +156,27 @@ def run(tracks: Tracks2D, rig: CameraRig, cfg: SyncConfig = SyncConfig()) -> Syn
         pair_lag_frames=lag,
         consistent=not incons,
     )
+
+
+def offsets_to_frames(time_offset_s: np.ndarray, fps: float) -> np.ndarray:
+    """(views,) integer frame shifts ``round(offset * fps)`` that map video frames to the rig clock."""
+    return np.round(np.asarray(time_offset_s, float) * float(fps)).astype(np.int64)
+
+
+def apply_offsets(tracks: Tracks2D, offset_frames: np.ndarray) -> Tracks2D:
+    """Re-index frames onto a common clock: row ``(v, f)`` moves to ``f + shift[v] - min(shift)``.
+
+    The earliest-starting camera keeps its numbering; ``n_frames`` grows to hold every
+    shifted row. Nothing is dropped or resampled (shifts are whole frames).
+    ``ValueError`` if ``offset_frames`` does not have one entry per view.
+    """
+    shift = np.asarray(offset_frames, np.int64)
+    if shift.shape != (tracks.n_views,):
+        raise ValueError(f"offset_frames has shape {shift.shape}, expected ({tracks.n_views},)")
+    shift = shift - shift.min()
+    if not np.any(shift):
+        return tracks
+    kw = dict(tracks.__dict__)
+    kw["frame"] = tracks.frame + shift[tracks.view]
+    kw["n_frames"] = int(tracks.n_frames + shift.max())
+    return type(tracks)(**kw)

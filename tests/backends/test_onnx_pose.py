@@ -192,3 +192,11 @@ def test_mmpose_style_estimators_map_back_to_image(kind: str) -> None:
     assert err_crop_px.max() < (0.5 if kind == "heatmap" else 0.3)  # SimCC bins are half a crop pixel
     assert valid[:, coco].all() and not valid[:, COCO17_FEET.index("left_heel")].any()
     assert np.all(conf[:, coco] > 0.5)
+    # Batched across frames (e.g. views): one network call for the crops of every frame,
+    # results identical to the per-frame call and routed back to the right frame.
+    est.sess.batches.clear()  # type: ignore[attr-defined]
+    many = est.estimate_many([img, img, img], [boxes[:1], np.zeros((0, 4)), boxes[1:]])
+    assert est.sess.batches == [2]  # type: ignore[attr-defined]
+    assert [len(m[0]) for m in many] == [1, 0, 1]
+    np.testing.assert_allclose(np.concatenate([many[0][0], many[2][0]]), kp)
+    np.testing.assert_array_equal(np.concatenate([many[0][2], many[2][2]]), valid)

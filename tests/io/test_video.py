@@ -13,7 +13,7 @@ def _write_video(path: Path, n: int = 6, w: int = 64, h: int = 48) -> None:
     vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (w, h))
     assert vw.isOpened()
     for i in range(n):
-        img = np.full((h, w, 3), 20 * i, dtype=np.uint8)
+        img = np.full((h, w, 3), (20 * i) % 256, dtype=np.uint8)
         vw.write(img)
     vw.release()
 
@@ -48,3 +48,24 @@ def test_empty_video_names_file(tmp_path: Path) -> None:
     p.write_bytes(b"")
     with pytest.raises(ValueError, match="empty.mp4"):
         list(iter_frames(p))
+
+
+def test_memory_stays_flat_with_video_length(tmp_path: Path) -> None:
+    """Streaming: the peak of Python-tracked allocations while consuming a video does not
+    grow with its length (a reader that buffered frames would grow 4x here)."""
+    import tracemalloc
+
+    def peak(n: int) -> int:
+        p = tmp_path / f"v{n}.avi"
+        _write_video(p, n=n, w=320, h=240)
+        tracemalloc.start()
+        total = 0.0
+        for _, img in iter_frames(p):
+            total += float(img[0, 0, 0])
+        _, pk = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        return pk
+
+    short, long = peak(20), peak(80)
+    frame_bytes = 320 * 240 * 3
+    assert long < short + 2 * frame_bytes

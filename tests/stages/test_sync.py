@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -78,3 +79,49 @@ def test_unknown_reference_camera() -> None:
     tr = _signal_tracks([np.zeros((30, 2)), np.zeros((30, 2))], 30)
     with pytest.raises(ValueError, match="camX"):
         run(tr, rig, SyncConfig(reference="camX"))
+
+
+def test_apply_offsets_reindexes_frames_onto_one_clock() -> None:
+    from pipeline.stages.sync import apply_offsets, offsets_to_frames
+
+    tr = _signal_tracks([np.zeros((10, 2))] * 3, 10)
+    shift = offsets_to_frames(np.array([0.0, 2 / 60, -1 / 60]), 60.0)
+    np.testing.assert_array_equal(shift, [0, 2, -1])
+    out = apply_offsets(tr, shift)
+    # The earliest camera (view 2, shift -1) keeps its numbering; the others move later.
+    np.testing.assert_array_equal(out.frame[out.view == 0], np.arange(10) + 1)
+    np.testing.assert_array_equal(out.frame[out.view == 1], np.arange(10) + 3)
+    np.testing.assert_array_equal(out.frame[out.view == 2], np.arange(10))
+    assert out.n_frames == 13
+    assert apply_offsets(tr, np.zeros(3, np.int64)) is tr
+    with pytest.raises(ValueError, match="expected"):
+        apply_offsets(tr, np.zeros(2, np.int64))
+
+
+def test_track_step_applies_given_offsets(tmp_path: Path) -> None:
+    import json
+
+    from pipeline.artifacts import ArtifactStore
+    from pipeline.io.calibration import load_calibration
+    from pipeline.runner import run as run_session
+    from pipeline.schema.detections import Tracks2D as T2
+    from tests.conftest import write_tiny_session
+
+    sess = write_tiny_session(tmp_path / "s")
+    cfg = json.loads((sess / "session.json").read_text())
+    cfg["stage_config"] = {"track": {"time_offsets": "given", "time_offsets_s": {"cam1": 0.0}}}
+    (sess / "session.json").write_text(json.dumps(cfg))
+    run_session(sess)
+    base = ArtifactStore(sess).load("track", "tracks", T2)
+    rig = load_calibration(sess / "inputs" / "calibration.toml")
+    names, fps = rig.names, rig.fps
+    cfg["stage_config"] = {"track": {"time_offsets": "given", "time_offsets_s": {names[1]: 3 / fps}}}
+    (sess / "session.json").write_text(json.dumps(cfg))
+    run_session(sess)
+    shifted = ArtifactStore(sess).load("track", "tracks", T2)
+    np.testing.assert_array_equal(shifted.frame[shifted.view == 1], base.frame[base.view == 1] + 3)
+    np.testing.assert_array_equal(shifted.frame[shifted.view == 0], base.frame[base.view == 0])
+    cfg["stage_config"] = {"track": {"time_offsets": "given", "time_offsets_s": {"nocam": 1.0}}}
+    (sess / "session.json").write_text(json.dumps(cfg))
+    with pytest.raises(ValueError, match="nocam"):
+        run_session(sess)
