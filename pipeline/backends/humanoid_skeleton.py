@@ -172,18 +172,28 @@ def measure_lengths(kp: Keypoints3D, person_index: int) -> dict[str, float]:
             small_toe_heel=sym("small_toe", "heel"),
         )
     if has_feet:
-        # Height of the foot keypoints above the sole: low percentile of the lowest foot
-        # point over the sequence (the data are z-up with the floor at z = 0).
-        fi = [kp.joint_names.index(n) for n in COCO17_FEET[17:]]
-        ok = kp.valid[:, p][:, fi].any(axis=-1)
-        zmin = np.where(kp.valid[:, p][:, fi], kp.xyz_m[:, p][:, fi, 2], np.inf).min(axis=-1)
-        raw["sole_offset"] = float(np.clip(np.percentile(zmin[ok], 5), 0.0, 0.04)) if ok.any() else None
+        raw["sole_offset"] = sole_height_m(kp, p)
     leg = raw["thigh"] if raw["thigh"] else None
     scale = leg / _DEFAULT_LENGTHS["thigh"] if leg else 1.0
     out = {k: (v if v is not None and (v > 1e-3 or k == "sole_offset") else _DEFAULT_LENGTHS[k] * scale) for k, v in raw.items()}
     for k, v in _DEFAULT_LENGTHS.items():
         out.setdefault(k, v * scale)
     return out
+
+
+def sole_height_m(kp: Keypoints3D, person_index: int) -> float | None:
+    """Height of the foot keypoints above the sole (m): the median over frames of the
+    lowest foot point of the person (the data are z-up with the floor at z = 0; one
+    foot is almost always planted). None without foot keypoints."""
+    if not all(n in kp.joint_names for n in COCO17_FEET[17:]):
+        return None
+    fi = [kp.joint_names.index(n) for n in COCO17_FEET[17:]]
+    v = kp.valid[:, person_index][:, fi]
+    ok = v.any(axis=-1)
+    if not ok.any():
+        return None
+    zmin = np.where(v, kp.xyz_m[:, person_index][:, fi, 2], np.inf).min(axis=-1)
+    return float(np.clip(np.median(zmin[ok]), 0.0, 0.04))
 
 
 def _t(v: np.ndarray | list[float]) -> tuple[float, float, float]:

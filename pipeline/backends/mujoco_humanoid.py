@@ -17,9 +17,10 @@ The root (``p{pid}_root_x/y/z`` slides + ``p{pid}_root`` ball) is kinematically 
 free joint with the same qpos/qvel layout (xyz, quat_wxyz / world linear velocity,
 local angular velocity). It is not actuated, except by the fallback *residual*:
 three force-limited servos ``p{pid}_res_x/y/z`` (actuator group 3, disabled
-by default via ``opt.disableactuator``) that pull the pelvis towards the reference
-root position with at most ``residual_force_frac`` of body weight. The optimiser
-enables them only for windows it cannot track and reports their force.
+in the MJCF via ``opt.disableactuator``) that apply the reference's residual root
+force plus a PD pull towards the reference root position, with at most
+``residual_force_frac`` of body weight per axis. The optimiser enables them (in
+every window by default, see ``PhysicsConfig.residual_root``) and reports their force.
 """
 
 from __future__ import annotations
@@ -58,9 +59,9 @@ class HumanoidConfig:
     """Passive joint damping (N·m·s/rad)."""
     residual_root: bool = True
     """Add the (disabled) residual root position servos, for the fallback."""
-    residual_force_frac: float = 0.5
+    residual_force_frac: float = 1.0
     """Force limit of each residual servo as a fraction of body weight."""
-    residual_saturation_m: float = 0.05
+    residual_saturation_m: float = 0.02
     """Root position error at which a residual servo reaches its force limit."""
     self_collision: Literal["adjacent_filtered", "none"] = "adjacent_filtered"
     """``adjacent_filtered``: a person's parts collide except parent/child, siblings
@@ -70,6 +71,9 @@ class HumanoidConfig:
     floor_margin_m: float = 0.0
     """Floor contact margin: the soft contact settles ~2-3 mm into its margin, so
     soles rest on z ≈ 0 instead of sinking into the floor."""
+    body_solref_timeconst_s: float = 0.02
+    """Contact time constant of body geoms (inter-person contacts); softer than the
+    soles' (0.02 s) so that overlapping athletes are pushed apart gently."""
     substeps: int = 2
     """MuJoCo steps per video frame: timestep = 1 / (fps · substeps). At 50 fps, one
     step (20 ms) is only stable with torque limits ≤ ~3 N·m/kg, too weak to track
@@ -252,9 +256,10 @@ def build_scene_mjcf(
           actuatorgroupdisable="3"/>
   <default>
     <joint damping="{cfg.joint_damping:.5g}" limited="true"/>
-    <geom density="{cfg.density_kg_m3:.6g}" friction="{fr:.3g} 0.01 0.001" condim="3" rgba="0.7 0.6 0.5 1"/>
+    <geom density="{cfg.density_kg_m3:.6g}" friction="{fr:.3g} 0.01 0.001" condim="3" rgba="0.7 0.6 0.5 1"
+          solref="{cfg.body_solref_timeconst_s:.4g} 1"/>
     <default class="sole">
-      <geom rgba="0.3 0.3 0.3 1"/>
+      <geom rgba="0.3 0.3 0.3 1" solref="0.02 1"/>
     </default>
     <site rgba="1 0 0 1" group="3"/>
   </default>

@@ -1,5 +1,5 @@
-"""Physics backend entry point: humanoids from 3D joints, reference IK, receding-
-horizon iLQR over a bout, and per-frame contacts.
+"""Physics backend entry point: receding-horizon iLQR over a bout and per-frame
+contacts; the scene and the reference come from ``mujoco_reference`` (re-exported).
 
 Called by ``pipeline.stages.physics`` (which stays free of mujoco imports).
 """
@@ -13,229 +13,46 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from pipeline.backends.humanoid_skeleton import Skeleton
-from pipeline.backends.mujoco_humanoid import (
-    HumanoidConfig,
-    SceneLayout,
-    build_scene_mjcf,
-    load_model,
-    scene_layout,
-)
 from pipeline.backends.mujoco_ilqr import ILQRConfig, ILQRResult, UnstableRollout, optimise
-from pipeline.backends.mujoco_tracking import CostWeights, Reference, TrackingCost, collision_depths
-from pipeline.schema.keypoints3d import Keypoints3D
+from pipeline.backends.mujoco_reference import (
+    Scene,
+    build_reference,
+    build_scene,
+    contact_inverse_dynamics,
+    inverse_kinematics,
+    lift_off_floor,
+    plant_feet,
+    reference_velocity,
+    separate_persons,
+    separate_reference,
+    servo_feedforward,
+)
+from pipeline.backends.mujoco_tracking import CostWeights, Reference, TrackingCost
+
+__all__ = [
+    "BoutSolution",
+    "FrameContacts",
+    "Scene",
+    "SolverConfig",
+    "build_reference",
+    "build_scene",
+    "contact_inverse_dynamics",
+    "contacts_and_sites",
+    "count_windows",
+    "inverse_kinematics",
+    "lift_off_floor",
+    "optimise_bout",
+    "plant_feet",
+    "reference_velocity",
+    "separate_persons",
+    "separate_reference",
+    "servo_feedforward",
+]
 
 log = logging.getLogger(__name__)
 
 RESIDUAL_GROUP = 3
 """Actuator group of the residual root servos (see ``mujoco_humanoid``)."""
-
-
-@dataclass(frozen=True)
-class Scene:
-    mjcf: str
-    model: mujoco.MjModel
-    layout: SceneLayout
-    person_ids: tuple[int, ...]
-    site_names: tuple[str, ...]
-    site_ids: np.ndarray  # (persons, sites)
-
-
-def build_scene(skeletons: list[Skeleton], person_ids: list[int], fps: float, joint_names: tuple[str, ...], cfg: HumanoidConfig) -> Scene:
-    """Compile the scene and map ``joint_names`` to sites of every person."""
-    mjcf = build_scene_mjcf(skeletons, person_ids, fps, cfg)
-    model = load_model(mjcf)
-    layout = scene_layout(model, person_ids)
-    names = tuple(n for n in joint_names if n in layout.persons[0].site_ids)
-    ids = np.array([[p.site_ids[n] for n in names] for p in layout.persons], dtype=np.int64)
-    return Scene(mjcf, model, layout, tuple(person_ids), names, ids)
-
-
-def _servo_qpos(model: mujoco.MjModel, layout: SceneLayout) -> np.ndarray:
-    return np.array([model.jnt_qposadr[model.actuator_trnid[a, 0]] for a in layout.servo_ids], dtype=np.int64)
-
-
-def _initial_root(targets: np.ndarray, names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Root position and quat_wxyz from hips and shoulders (rest pose faces +x, left +y)."""
-    ix = {n: i for i, n in enumerate(names)}
-    lh, rh = targets[ix["left_hip"]], targets[ix["right_hip"]]
-    ls, rs = targets[ix["left_shoulder"]], targets[ix["right_shoulder"]]
-    y = lh - rh
-    y /= max(np.linalg.norm(y), 1e-6)
-    z = 0.5 * (ls + rs) - 0.5 * (lh + rh)
-    z -= y * (z @ y)
-    z = z / np.linalg.norm(z) if np.linalg.norm(z) > 1e-6 else np.array([0.0, 0.0, 1.0])
-    x = np.cross(y, z)
-    R = np.column_stack([x, y, z])
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, R.ravel())
-    return 0.5 * (lh + rh), quat
-
-
-def inverse_kinematics(
-    scene: Scene,
-    targets: np.ndarray,
-    weight: np.ndarray,
-    iters_first: int = 60,
-    iters: int = 10,
-    damping: float = 1e-3,
-) -> np.ndarray:
-    """Per-frame damped least squares of sites onto targets, warm-started in time.
-
-    targets: (frames, persons, sites, 3) world; weight: (frames, persons, sites).
-    Returns qpos (frames, nq), hinge angles clamped to their ranges.
-    """
-    m, lay = scene.model, scene.layout
-    d = mujoco.MjData(m)
-    F, P, S = weight.shape
-    q = m.qpos0.copy()
-    for i, p in enumerate(lay.persons):
-        ok = weight[:, i].sum(axis=-1) > 0
-        f0 = int(np.argmax(ok))
-        pos, quat = _initial_root(targets[f0, i], scene.site_names)
-        q[p.qpos_adr : p.qpos_adr + 3] = pos
-        q[p.qpos_adr + 3 : p.qpos_adr + 7] = quat
-    hinge_j = [j for j in range(m.njnt) if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE]
-    hq = np.array([m.jnt_qposadr[j] for j in hinge_j], dtype=np.int64)
-    lo, hi = m.jnt_range[hinge_j, 0], m.jnt_range[hinge_j, 1]
-    out = np.zeros((F, m.nq))
-    jac = np.zeros((3, m.nv))
-    dq = np.zeros(m.nv)
-    for f in range(F):
-        for it in range(iters_first if f == 0 else iters):
-            d.qpos[:] = q
-            mujoco.mj_kinematics(m, d)
-            mujoco.mj_comPos(m, d)
-            JtJ = np.zeros((m.nv, m.nv))
-            Jtr = np.zeros(m.nv)
-            for i in range(P):
-                for s in range(S):
-                    w = weight[f, i, s]
-                    if w <= 0:
-                        continue
-                    sid = int(scene.site_ids[i, s])
-                    r = d.site_xpos[sid] - targets[f, i, s]
-                    mujoco.mj_jacSite(m, d, jac, None, sid)
-                    JtJ += w * jac.T @ jac
-                    Jtr += w * jac.T @ r
-            lam = damping * (10.0 if (f == 0 and it < 10) else 1.0)
-            dq[:] = -np.linalg.solve(JtJ + lam * np.eye(m.nv) + 1e-6 * np.diag(np.diag(JtJ)), Jtr)
-            mujoco.mj_integratePos(m, q, dq, 1.0)
-            q[hq] = np.clip(q[hq], lo, hi)
-        out[f] = q
-    return out
-
-
-def reference_velocity(model: mujoco.MjModel, qpos: np.ndarray, fps: float) -> np.ndarray:
-    """Central-difference generalised velocities (frames, nv)."""
-    F = qpos.shape[0]
-    v = np.zeros((F, model.nv))
-    for f in range(F):
-        a, b = max(f - 1, 0), min(f + 1, F - 1)
-        if a == b:
-            continue
-        mujoco.mj_differentiatePos(model, v[f], (b - a) / fps, qpos[a], qpos[b])
-    return v
-
-
-def build_reference(scene: Scene, kp: Keypoints3D, person_rows: list[int]) -> tuple[Reference, np.ndarray, np.ndarray]:
-    """IK reference + body-frame targets. Returns (reference, targets_world, weight)."""
-    m, lay = scene.model, scene.layout
-    jidx = [kp.joint_names.index(n) for n in scene.site_names]
-    targets = kp.xyz_m[:, person_rows][:, :, jidx].astype(float)
-    weight = (kp.valid[:, person_rows][:, :, jidx] * np.clip(kp.confidence[:, person_rows][:, :, jidx], 0.0, 1.0)).astype(float)
-    targets = np.where(weight[..., None] > 0, targets, 0.0)
-    qref = inverse_kinematics(scene, targets, weight)
-    vref = reference_velocity(m, qref, kp.fps)
-    d = mujoco.MjData(m)
-    F, P, S = weight.shape
-    local = np.zeros((F, P, S, 3))
-    for f in range(F):
-        d.qpos[:] = qref[f]
-        mujoco.mj_kinematics(m, d)
-        for i, p in enumerate(lay.persons):
-            R = d.xmat[p.root_body].reshape(3, 3)
-            local[f, i] = (targets[f, i] - d.xpos[p.root_body]) @ R
-    ctrl = servo_feedforward(scene, qref, vref, kp.fps)
-    nxt = np.minimum(np.arange(F) + 1, F - 1)
-    for p in lay.persons:
-        # Residual servos (used only in fallback windows) target the reference root.
-        for k, a in enumerate(p.residual_ids):
-            ctrl[:, a] = qref[nxt, p.qpos_adr + k]
-    ref = Reference(site_ids=scene.site_ids, site_local_m=local, site_world_m=targets, site_weight=weight, qpos=qref, qvel=vref, ctrl=ctrl)
-    return ref, targets, weight
-
-
-def servo_feedforward(scene: Scene, qref: np.ndarray, vref: np.ndarray, fps: float) -> np.ndarray:
-    """Servo targets (frames, nu) that reproduce the inverse-dynamics hinge torques
-    of the reference: u = q̂ + (τ_id + kv·q̂̇) / kp, clamped to the joint range.
-
-    Without this feed-forward a PD servo sags by τ/kp under gravity (~0.2 rad at
-    the stance knee). Residual root controls are 0.
-    """
-    m, lay = scene.model, scene.layout
-    d = mujoco.MjData(m)
-    F = qref.shape[0]
-    servo = lay.servo_ids
-    dof = np.array([m.jnt_dofadr[m.actuator_trnid[a, 0]] for a in servo], dtype=np.int64)
-    sq = _servo_qpos(m, lay)
-    kp = m.actuator_gainprm[servo, 0]
-    kv = -m.actuator_biasprm[servo, 2]
-    acc = np.gradient(vref, 1.0 / fps, axis=0) if F > 1 else np.zeros_like(vref)
-    ctrl = np.zeros((F, m.nu))
-    for f in range(F):
-        d.qpos[:] = qref[f]
-        d.qvel[:] = vref[f]
-        d.qacc[:] = acc[f]
-        mujoco.mj_inverse(m, d)
-        # Passive joint damping is part of qfrc_inverse's balance; the servo supplies the rest.
-        tau = d.qfrc_inverse[dof]
-        ctrl[f, servo] = qref[f, sq] + (tau + kv * vref[f, dof]) / kp
-    lo, hi = m.actuator_ctrlrange[servo, 0], m.actuator_ctrlrange[servo, 1]
-    ctrl[:, servo] = np.clip(ctrl[:, servo], lo, hi)
-    return ctrl
-
-
-def separate_persons(scene: Scene, qpos: np.ndarray, iters: int = 20, damping: float = 1e-3) -> np.ndarray:
-    """Remove inter-person overlap from one configuration by Gauss–Newton on the
-    contact depths (minimal change of all DOFs), so that a simulation does not
-    start from a deep interpenetration (which MuJoCo resolves explosively)."""
-    m, lay = scene.model, scene.layout
-    d = mujoco.MjData(m)
-    q = qpos.copy()
-    for _ in range(iters):
-        d.qpos[:] = q
-        mujoco.mj_fwdPosition(m, d)
-        depth, J = collision_depths(m, d, lay.geom_person, True)
-        if depth.size == 0 or depth.max() < 1e-4:
-            break
-        assert J is not None
-        r = depth + 1e-3
-        dq = -np.linalg.solve(J.T @ J + damping * np.eye(m.nv), J.T @ r)
-        mujoco.mj_integratePos(m, q, dq, 1.0)
-    return q
-
-
-def lift_off_floor(scene: Scene, qpos: np.ndarray) -> np.ndarray:
-    """Raise each person so that no geom penetrates the floor (initial state only)."""
-    m, lay = scene.model, scene.layout
-    d = mujoco.MjData(m)
-    q = qpos.copy()
-    d.qpos[:] = q
-    mujoco.mj_forward(m, d)
-    floor = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "floor")
-    lift = np.zeros(len(lay.persons))
-    for c in range(d.ncon):
-        g1, g2 = d.contact.geom[c]
-        if floor not in (g1, g2):
-            continue
-        other = g2 if g1 == floor else g1
-        pi = lay.geom_person[other]
-        if pi >= 0:
-            lift[pi] = max(lift[pi], -d.contact.dist[c])
-    for i, p in enumerate(lay.persons):
-        q[p.qpos_adr + 2] += lift[i] + 1e-3 if lift[i] > 0 else 0.0
-    return q
 
 
 @dataclass(frozen=True)
@@ -254,8 +71,10 @@ class SolverConfig:
     """``fallback`` / ``always`` / ``off`` (see ``PhysicsConfig.residual_root``)."""
     fallback_tol_m: float = 0.05
     """Mean joint error of a window above which it is redone with the residual."""
-    residual_torque_frac: float = 0.5
+    residual_torque_frac: float = 1.0
     """Residual root torque limit: this fraction of body weight × 0.3 m."""
+    residual_rot_saturation_rad: float = 0.03
+    """Root orientation error at which the residual torque's PD part saturates."""
 
 
 @dataclass
@@ -355,7 +174,7 @@ def optimise_bout(
 
     def set_residual(on: bool) -> None:
         m.opt.disableactuator = (base_disable & ~res_bit) if on else (base_disable | res_bit)
-        cost.set_residual(on, cfg.residual_torque_frac * bw * 0.3)
+        cost.set_residual(on, cfg.residual_torque_frac * bw * 0.3, cfg.residual_rot_saturation_rad)
         if not on:
             d.xfrc_applied[:] = 0.0
 

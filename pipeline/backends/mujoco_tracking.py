@@ -8,12 +8,14 @@ Cost at step t (x = (q, v), u = servo targets):
         + ‖p_root − p̂_root‖² + (0.3 m)² ‖q_root ⊖ q̂_root‖²)  (+ root placement)
   + w3 ‖v − v̂‖²                                           L_v
   + w4 Σ_{contacts between people} depth²                  L_collision
+  + w_skate Σ_{foot points of planted feet} ‖v_xy‖²        (foot contact, ours)
 
 Hatted quantities come from the reference: per-frame inverse kinematics of the
-fitted 3D joints onto the humanoid's sites (:func:`inverse_kinematics`). The
+fitted 3D joints onto the humanoid's sites, made contact-consistent
+(``mujoco_reference.build_reference``). The
 servo-target regulariser replaces the paper's ‖u‖² because our controls are PD
 targets, not torques: û are the reference servo targets with the inverse-dynamics
-feed-forward (``mujoco_physics.servo_feedforward``), which cost nothing.
+feed-forward (``mujoco_reference.servo_feedforward``), which cost nothing.
 Gauss–Newton Hessians: lxx = 2 Σ w Jᵀ J. Contact-depth Jacobians use the contact
 normal n (geom1 → geom2): ∂dist/∂q = nᵀ (J_body2(p) − J_body1(p)).
 """
@@ -28,6 +30,7 @@ import numpy as np
 from pipeline.backends.mujoco_humanoid import SceneLayout
 
 ROOT_ROT_LEVER_M = 0.3
+FOOT_SITES = ("heel", "big_toe", "small_toe")
 
 
 @dataclass(frozen=True)
@@ -38,11 +41,14 @@ class CostWeights:
     """w1: velocity and control regularisation."""
     w_pos: float = 10.0
     """w2: joint position tracking (body frame) + root placement."""
-    w_vel: float = 0.1
+    w_vel: float = 0.003
     """w3: generalised velocity tracking."""
     w_collision: float = 20.0
     """w4: squared inter-person penetration depth (m²)."""
     world_frac: float = 0.5
+    w_skate: float = 10.0
+    """Squared horizontal velocity (m²/s²) of the foot points of feet planted in the
+    reference (no sliding of stance feet)."""
     """Share of w2 given to world-frame joint positions (the rest: body frame).
     Body-frame residuals alone (the paper's) leave foot placement to the single
     root-position residual; world-frame ones pull each foot to where it was seen."""
@@ -57,7 +63,8 @@ class Reference:
     site_world_m: (frames, persons, sites, 3) keypoints in the world frame.
     site_weight: (frames, persons, sites) ≥ 0 (0 where the joint was not observed).
     qpos: (frames, nq) reference (IK) configuration; qvel: (frames, nv).
-    ctrl: (frames, nu) reference servo targets.
+    ctrl: (frames, nu) reference servo targets (inverse-dynamics feed-forward
+    included, residual root servos too).
     """
 
     site_ids: np.ndarray
@@ -67,6 +74,11 @@ class Reference:
     qpos: np.ndarray
     qvel: np.ndarray
     ctrl: np.ndarray
+    root_torque_ff: np.ndarray | None = None
+    foot_contact: np.ndarray | None = None
+    """(frames, persons, 2) planted left/right feet of the reference, or None."""
+    """(frames, persons, 3) world-frame residual root torque (N·m) the reference
+    needs beyond what the feet can supply (inverse dynamics), or None."""
 
 
 def _root_frames(layout: SceneLayout, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -132,6 +144,10 @@ class TrackingCost:
             self._ref_root.append((pos, quat))
         self._jac = np.zeros((3, model.nv))
         self._nf = nf
+        self._feet = [
+            [[p.site_ids[f"{side}_{n}"] for n in FOOT_SITES if f"{side}_{n}" in p.site_ids] for side in ("left", "right")]
+            for p in layout.persons
+        ]
 
     def _t(self, t: int) -> int:
         return min(max(t, 0), self._nf - 1)
@@ -181,6 +197,26 @@ class TrackingCost:
         r = np.concatenate(rs)
         return r, (np.vstack(js) if with_jac else None)
 
+    def _skate(self, data: mujoco.MjData, t: int, with_jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """Horizontal velocities of planted foot points (k,) and their Jacobians wrt qvel (k, nv)."""
+        fc = self.ref.foot_contact
+        if fc is None or self.w.w_skate <= 0:
+            return np.zeros(0), (np.zeros((0, self.model.nv)) if with_jac else None)
+        rs, js = [], []
+        for i in range(len(self.layout.persons)):
+            for k in range(2):
+                if not fc[t, i, k]:
+                    continue
+                for sid in self._feet[i][k]:
+                    mujoco.mj_jacSite(self.model, data, self._jac, None, int(sid))
+                    J = self._jac[:2]
+                    rs.append(J @ data.qvel)
+                    if with_jac:
+                        js.append(J.copy())
+        if not rs:
+            return np.zeros(0), (np.zeros((0, self.model.nv)) if with_jac else None)
+        return np.concatenate(rs), (np.vstack(js) if with_jac else None)
+
     def _collision(self, data: mujoco.MjData, with_jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
         return collision_depths(self.model, data, self.layout.geom_person, with_jac)
 
@@ -210,6 +246,8 @@ class TrackingCost:
             Rm = R.reshape(3, 3)
             w_local = qvel[p.qvel_adr + 3 : p.qvel_adr + 6]
             tau = -(self._kp_rot[i] * (Rm @ err) + self._kd_rot[i] * (Rm @ w_local))
+            if self.ref.root_torque_ff is not None:
+                tau = tau + self.ref.root_torque_ff[tr, i]
             n = np.linalg.norm(tau)
             out[i] = tau if n <= self._tau_lim[i] else tau * (self._tau_lim[i] / n)
         return out
@@ -230,6 +268,8 @@ class TrackingCost:
         depth, _ = self._collision(data, False)
         c = w.w_reg * float(v @ v) + w.w_pos * float(rp @ rp) + w.w_vel * float(np.sum((v - ref.qvel[t]) ** 2))
         c += w.w_collision * float(depth @ depth)
+        rs, _ = self._skate(data, t, False)
+        c += w.w_skate * float(rs @ rs)
         if u is not None:
             du = u[self.servo] - ref.ctrl[t, self.servo]
             c += w.w_reg * float(du @ du)
@@ -251,6 +291,11 @@ class TrackingCost:
             assert Jc is not None
             lx[:nv] += 2 * w.w_collision * (Jc.T @ depth)
             lxx[:nv, :nv] += 2 * w.w_collision * (Jc.T @ Jc)
+        rs, Js = self._skate(data, t, True)
+        if rs.size:
+            assert Js is not None
+            lx[nv:] += 2 * w.w_skate * (Js.T @ rs)
+            lxx[nv:, nv:] += 2 * w.w_skate * (Js.T @ Js)
         v = data.qvel
         lx[nv:] += 2 * w.w_reg * v + 2 * w.w_vel * (v - ref.qvel[t])
         lxx[nv:, nv:] += 2 * (w.w_reg + w.w_vel) * np.eye(nv)

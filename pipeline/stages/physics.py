@@ -6,6 +6,14 @@ persons on one ground plane, computes a kinematic reference by inverse kinematic
 and optimises servo targets with receding-horizon iLQR so that the simulated
 motion tracks the joints while contacts (ground, other athlete) stay physical.
 
+The reference is made contact-consistent before tracking: planted feet are held
+still at the sole height, overlapping athletes are separated frame by frame
+(arms and spine move first), and the servo targets carry inverse-dynamics
+feed-forward with the ground reactions distributed over the feet. The initial
+controls of every window are that feed-forward, and a residual root wrench
+(feed-forward + PD, ≤ ``residual_force_frac`` body weight) keeps the kinematic
+(not dynamically consistent) motion upright; its use is reported.
+
 ``inputs.bodyfit`` is accepted but not used yet: the humanoid is sized from the
 fitted joints, not from the body model's mesh (convex hulls are not implemented).
 
@@ -52,11 +60,26 @@ class PhysicsConfig:
     """Smallest line-search step."""
     fd_centered: bool = False
     """Centred finite differences (2× slower)."""
-    residual_root: Literal["fallback", "always", "off"] = "fallback"
-    """Residual root wrench (force-limited PD pulls of the root towards the reference
-    root pose, ≤ 0.5 body weight and ≤ 0.5 body weight × 0.3 m): only for windows
-    whose tracking error exceeds ``fallback_tol_m`` (default), in every window, or
-    never. Its use is reported (``residual_root_force``, stats)."""
+    residual_root: Literal["fallback", "always", "off"] = "always"
+    """Residual root wrench (residual force control): the root wrench the reference
+    needs beyond what the feet can supply (inverse dynamics) plus a PD pull of the
+    root towards the reference root pose, limited by ``residual_force_frac``; in
+    every window (default), only for windows whose tracking error exceeds
+    ``fallback_tol_m``, or never. Its use is reported (``residual_root_force``,
+    stats). Without it the synthetic boxers (kinematic, not dynamically consistent
+    motion) drift and fall within a second."""
+    servo_kp_per_kg: float = 12.0
+    """Servo stiffness (N·m/rad per kg of body mass, times the joint's strength)."""
+    servo_torque_per_kg: float = 6.0
+    """Servo torque limit (N·m per kg of body mass, times the joint's strength)."""
+    body_solref_s: float = 0.02
+    """Contact time constant of body geoms (soles: 0.02 s); larger = softer
+    inter-person contacts."""
+    residual_saturation_m: float = 0.02
+    """Root position error at which the residual root force's PD part saturates."""
+    residual_force_frac: float = 1.0
+    """Limit of the residual root force per axis (fraction of body weight) and of the
+    residual root torque (fraction of body weight × 0.3 m)."""
     fallback_tol_m: float = 0.05
     """Mean joint error (m) above which a window is re-optimised with the residual."""
     self_collision: Literal["adjacent_filtered", "none"] = "adjacent_filtered"
@@ -65,10 +88,13 @@ class PhysicsConfig:
     """w1 of eq. 5 (‖v‖² + servo target deviation)."""
     w_pos: float = 10.0
     """w2 of eq. 5 (joint positions in the body frame + root placement)."""
-    w_vel: float = 0.1
-    """w3 of eq. 5 (velocity tracking)."""
+    w_vel: float = 0.003
+    """w3 of eq. 5 (velocity tracking). Small: reference velocities of triangulated
+    joints are noisy, and at the paper's 0.1 this term outweighs positions ~10×."""
     w_collision: float = 20.0
     """w4 of eq. 5 (squared inter-person penetration depth)."""
+    w_skate: float = 10.0
+    """Foot-contact term: squared horizontal speed of feet planted in the reference."""
 
     def __post_init__(self) -> None:
         if not (1 <= self.commit <= self.window):
@@ -133,7 +159,12 @@ def run(
     pids = [int(kp.person_ids[r]) for r in rows]
     skels = [skeleton_from_keypoints(kp, r) for r in rows]
     hcfg = HumanoidConfig(
-        residual_root=cfg.residual_root != "off", self_collision=cfg.self_collision, substeps=cfg.substeps
+        residual_root=cfg.residual_root != "off", self_collision=cfg.self_collision, substeps=cfg.substeps,
+        residual_force_frac=cfg.residual_force_frac,
+        kp_per_kg=cfg.servo_kp_per_kg,
+        torque_per_kg=cfg.servo_torque_per_kg,
+        body_solref_timeconst_s=cfg.body_solref_s,
+        residual_saturation_m=cfg.residual_saturation_m,
     )
     scfg = mp.SolverConfig(
         window=cfg.window,
@@ -146,9 +177,10 @@ def run(
             fd_centered=cfg.fd_centered,
             substeps=cfg.substeps,
         ),
-        weights=CostWeights(cfg.w_reg, cfg.w_pos, cfg.w_vel, cfg.w_collision),
+        weights=CostWeights(cfg.w_reg, cfg.w_pos, cfg.w_vel, cfg.w_collision, w_skate=cfg.w_skate),
         residual=cfg.residual_root,
         fallback_tol_m=cfg.fallback_tol_m,
+        residual_torque_frac=cfg.residual_force_frac,
     )
     scene = mp.build_scene(skels, pids, kp.fps, kp.joint_names, hcfg)
     groups = [list(range(len(rows)))] if cfg.mode == "multi" else [[i] for i in range(len(rows))]

@@ -10,6 +10,7 @@ mujoco = pytest.importorskip("mujoco")
 from pipeline.backends.humanoid_skeleton import (  # noqa: E402
     _DEFAULT_LENGTHS,
     build_skeleton,
+    measure_lengths,
     rest_site_positions,
     skeleton_from_keypoints,
 )
@@ -123,3 +124,87 @@ def test_random_servo_targets_stay_stable() -> None:
         assert np.all(np.isfinite(data.qpos))
         assert np.abs(data.qvel).max() < 100.0
         assert data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number == 0
+
+
+def test_sole_height_is_median_lowest_foot_point() -> None:
+    from pipeline.backends.humanoid_skeleton import sole_height_m
+
+    kp = _rest_keypoints(1.0, n_frames=9)
+    xyz = kp.xyz_m.copy()
+    xyz[..., 2] += 0.02  # feet keypoints 2 cm above the floor
+    xyz[2, 0, :, 2] -= 0.03  # one bad frame dips below the floor
+    assert sole_height_m(kp.replace(xyz_m=xyz), 0) == pytest.approx(0.02, abs=2e-3)
+    assert measure_lengths(kp.replace(xyz_m=xyz), 0)["sole_offset"] == pytest.approx(0.02, abs=2e-3)
+
+
+def test_contact_inverse_dynamics_feet_carry_the_weight() -> None:
+    """Standing still: the feet take the body weight, the residual root wrench is
+    ~0; with no foot low enough to touch the floor the root needs ~1 body weight."""
+    from pipeline.backends.mujoco_reference import contact_inverse_dynamics
+
+    skel = build_skeleton(dict(_DEFAULT_LENGTHS))
+    model = load_model(build_scene_mjcf([skel], [0], 50.0))
+    lay = scene_layout(model, [0])
+    p = lay.persons[0]
+    q = np.tile(model.qpos0, (4, 1))
+    q[:, p.qpos_adr : p.qpos_adr + 3] = [0.0, 0.0, skel.pelvis_height_m]
+    v = np.zeros((4, model.nv))
+    bw = p.mass_kg * 9.81
+    tau, res = contact_inverse_dynamics(model, lay, q, v, 50.0)
+    assert np.abs(res[:, 0, :3]).max() < 0.02 * bw
+    assert np.abs(res[:, 0, 3:]).max() < 0.02 * bw * 0.3
+    knee = model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "p0_left_knee")]
+    _, res_air = contact_inverse_dynamics(model, lay, q, v, 50.0, contact_height_m=-1.0)
+    assert res_air[:, 0, 2] == pytest.approx(bw, rel=1e-3)
+    assert np.all(np.isfinite(tau[:, knee]))
+
+
+def test_plant_feet_holds_planted_foot_still() -> None:
+    from pipeline.backends.mujoco_reference import plant_feet
+
+    names = ("left_heel", "left_big_toe", "left_small_toe", "right_heel", "right_big_toe", "right_small_toe")
+    F = 30
+    rng = np.random.default_rng(2)
+    base = np.array([[-0.05, 0.1, 0.02], [0.15, 0.1, 0.02], [0.12, 0.15, 0.02]])
+    xyz = np.zeros((F, 1, 6, 3))
+    xyz[:, 0, :3] = base + rng.normal(scale=0.004, size=(F, 3, 3))  # planted, noisy
+    t = np.arange(F) / 50.0
+    xyz[:, 0, 3:] = base + [0.0, -0.3, 0.0]
+    xyz[:, 0, 3:, 0] += 1.0 * t[:, None]  # right foot slides forward at 1 m/s
+    xyz[:, 0, 3:, 2] += 0.05  # and is lifted
+    out, contact = plant_feet(xyz, np.ones((F, 1, 6)), names, 50.0, np.array([0.02]))
+    assert contact[:, 0, 0].all() and not contact[:, 0, 1].any()
+    assert np.abs(np.diff(out[:, 0, :3], axis=0)).max() < 1e-9
+    assert np.all(out[..., 2] >= 0.02 - 1e-9)
+    assert np.allclose(out[:, 0, 3:], xyz[:, 0, 3:])
+
+
+def test_separate_reference_removes_overlap_keeping_feet() -> None:
+    """Two athletes 0.16 m apart (bodies overlap by centimetres): every frame of the
+    separated reference is contact-free, and legs/root height barely move."""
+    from pipeline.backends.mujoco_reference import build_scene, separate_reference
+    from pipeline.backends.mujoco_tracking import collision_depths
+
+    skel = build_skeleton(dict(_DEFAULT_LENGTHS))
+    scene = build_scene([skel, skel], [0, 1], 50.0, COCO17_FEET, HumanoidConfig())
+    m, lay = scene.model, scene.layout
+    q = m.qpos0.copy()
+    for p, x, y, quat in ((lay.persons[0], 0.0, 0.0, [1, 0, 0, 0]), (lay.persons[1], 0.16, 0.1, [0, 0, 0, 1])):
+        q[p.qpos_adr : p.qpos_adr + 3] = [x, y, skel.pelvis_height_m]
+        q[p.qpos_adr + 3 : p.qpos_adr + 7] = quat
+    qref = np.tile(q, (3, 1))
+    data = mujoco.MjData(m)
+
+    def depth(qp: np.ndarray) -> float:
+        data.qpos[:] = qp
+        mujoco.mj_fwdPosition(m, data)
+        d, _ = collision_depths(m, data, lay.geom_person, False)
+        return float(d.max(initial=0.0))
+
+    assert depth(qref[0]) > 0.02
+    out = separate_reference(scene, qref)
+    assert max(depth(qf) for qf in out) < 0.005
+    legs = [m.jnt_qposadr[j] for j in range(m.njnt) if any(k in m.joint(j).name for k in ("_knee", "_ankle_", "_hip_"))]
+    roots_z = [p.qpos_adr + 2 for p in lay.persons]
+    assert np.abs(out[:, legs] - qref[:, legs]).max() < 0.05
+    assert np.abs(out[:, roots_z] - qref[:, roots_z]).max() < 0.01

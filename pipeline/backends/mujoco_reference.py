@@ -1,0 +1,431 @@
+"""The kinematic reference the physics stage tracks, and the scene it lives in.
+
+Scene compilation (``build_scene``), per-frame inverse kinematics of the 3D joints
+onto the humanoids' sites, contact-consistent clean-up of that reference (planted
+feet held still at the sole height, overlapping athletes separated) and the
+inverse-dynamics feed-forward of the servos (ground reactions distributed over the
+feet; what they cannot supply is the residual root wrench).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from pipeline.backends.humanoid_skeleton import Skeleton, sole_height_m
+from pipeline.backends.mujoco_humanoid import (
+    HumanoidConfig,
+    SceneLayout,
+    build_scene_mjcf,
+    load_model,
+    scene_layout,
+)
+from pipeline.backends.mujoco_tracking import FOOT_SITES, Reference, collision_depths
+from pipeline.schema.keypoints3d import Keypoints3D
+
+
+@dataclass(frozen=True)
+class Scene:
+    mjcf: str
+    model: mujoco.MjModel
+    layout: SceneLayout
+    person_ids: tuple[int, ...]
+    site_names: tuple[str, ...]
+    site_ids: np.ndarray  # (persons, sites)
+
+
+def build_scene(skeletons: list[Skeleton], person_ids: list[int], fps: float, joint_names: tuple[str, ...], cfg: HumanoidConfig) -> Scene:
+    """Compile the scene and map ``joint_names`` to sites of every person."""
+    mjcf = build_scene_mjcf(skeletons, person_ids, fps, cfg)
+    model = load_model(mjcf)
+    layout = scene_layout(model, person_ids)
+    names = tuple(n for n in joint_names if n in layout.persons[0].site_ids)
+    ids = np.array([[p.site_ids[n] for n in names] for p in layout.persons], dtype=np.int64)
+    return Scene(mjcf, model, layout, tuple(person_ids), names, ids)
+
+
+def _servo_qpos(model: mujoco.MjModel, layout: SceneLayout) -> np.ndarray:
+    return np.array([model.jnt_qposadr[model.actuator_trnid[a, 0]] for a in layout.servo_ids], dtype=np.int64)
+
+
+def _initial_root(targets: np.ndarray, names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Root position and quat_wxyz from hips and shoulders (rest pose faces +x, left +y)."""
+    ix = {n: i for i, n in enumerate(names)}
+    lh, rh = targets[ix["left_hip"]], targets[ix["right_hip"]]
+    ls, rs = targets[ix["left_shoulder"]], targets[ix["right_shoulder"]]
+    y = lh - rh
+    y /= max(np.linalg.norm(y), 1e-6)
+    z = 0.5 * (ls + rs) - 0.5 * (lh + rh)
+    z -= y * (z @ y)
+    z = z / np.linalg.norm(z) if np.linalg.norm(z) > 1e-6 else np.array([0.0, 0.0, 1.0])
+    x = np.cross(y, z)
+    R = np.column_stack([x, y, z])
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, R.ravel())
+    return 0.5 * (lh + rh), quat
+
+
+def inverse_kinematics(
+    scene: Scene,
+    targets: np.ndarray,
+    weight: np.ndarray,
+    iters_first: int = 60,
+    iters: int = 10,
+    damping: float = 1e-3,
+) -> np.ndarray:
+    """Per-frame damped least squares of sites onto targets, warm-started in time.
+
+    targets: (frames, persons, sites, 3) world; weight: (frames, persons, sites).
+    Returns qpos (frames, nq), hinge angles clamped to their ranges.
+    """
+    m, lay = scene.model, scene.layout
+    d = mujoco.MjData(m)
+    F, P, S = weight.shape
+    q = m.qpos0.copy()
+    for i, p in enumerate(lay.persons):
+        ok = weight[:, i].sum(axis=-1) > 0
+        f0 = int(np.argmax(ok))
+        pos, quat = _initial_root(targets[f0, i], scene.site_names)
+        q[p.qpos_adr : p.qpos_adr + 3] = pos
+        q[p.qpos_adr + 3 : p.qpos_adr + 7] = quat
+    hinge_j = [j for j in range(m.njnt) if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE]
+    hq = np.array([m.jnt_qposadr[j] for j in hinge_j], dtype=np.int64)
+    lo, hi = m.jnt_range[hinge_j, 0], m.jnt_range[hinge_j, 1]
+    out = np.zeros((F, m.nq))
+    jac = np.zeros((3, m.nv))
+    dq = np.zeros(m.nv)
+    for f in range(F):
+        for it in range(iters_first if f == 0 else iters):
+            d.qpos[:] = q
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            JtJ = np.zeros((m.nv, m.nv))
+            Jtr = np.zeros(m.nv)
+            for i in range(P):
+                for s in range(S):
+                    w = weight[f, i, s]
+                    if w <= 0:
+                        continue
+                    sid = int(scene.site_ids[i, s])
+                    r = d.site_xpos[sid] - targets[f, i, s]
+                    mujoco.mj_jacSite(m, d, jac, None, sid)
+                    JtJ += w * jac.T @ jac
+                    Jtr += w * jac.T @ r
+            lam = damping * (10.0 if (f == 0 and it < 10) else 1.0)
+            dq[:] = -np.linalg.solve(JtJ + lam * np.eye(m.nv) + 1e-6 * np.diag(np.diag(JtJ)), Jtr)
+            mujoco.mj_integratePos(m, q, dq, 1.0)
+            q[hq] = np.clip(q[hq], lo, hi)
+        out[f] = q
+    return out
+
+
+def reference_velocity(model: mujoco.MjModel, qpos: np.ndarray, fps: float) -> np.ndarray:
+    """Central-difference generalised velocities (frames, nv)."""
+    F = qpos.shape[0]
+    v = np.zeros((F, model.nv))
+    for f in range(F):
+        a, b = max(f - 1, 0), min(f + 1, F - 1)
+        if a == b:
+            continue
+        mujoco.mj_differentiatePos(model, v[f], (b - a) / fps, qpos[a], qpos[b])
+    return v
+
+
+def build_reference(
+    scene: Scene, kp: Keypoints3D, person_rows: list[int], plant: bool = True, separate: bool = True
+) -> tuple[Reference, np.ndarray, np.ndarray]:
+    """IK reference + body-frame targets. Returns (reference, targets_world, weight).
+
+    With ``plant``, planted feet are held still and lifted to the sole height
+    (``mujoco_tracking.plant_feet``) before the IK. With ``separate``, each frame of
+    the IK reference is freed of inter-person overlap (``separate_persons``: minimal
+    change of all DOFs) and the tracked targets become the reference's own sites:
+    the optimiser then tracks a contact-free, reachable motion instead of fighting
+    keypoints that pass through the other athlete (the synthetic clinches do)."""
+    m, lay = scene.model, scene.layout
+    jidx = [kp.joint_names.index(n) for n in scene.site_names]
+    targets = kp.xyz_m[:, person_rows][:, :, jidx].astype(float)
+    weight = (kp.valid[:, person_rows][:, :, jidx] * np.clip(kp.confidence[:, person_rows][:, :, jidx], 0.0, 1.0)).astype(float)
+    targets = np.where(weight[..., None] > 0, targets, 0.0)
+    if plant:
+        sole = np.array([sole_height_m(kp, r) or 0.0 for r in person_rows])
+        targets, contact = plant_feet(targets, weight, scene.site_names, kp.fps, sole)
+    else:
+        contact = None
+    qref = inverse_kinematics(scene, targets, weight)
+    F, P, S = weight.shape
+    if separate and P > 1:
+        qref = separate_reference(scene, qref)
+    vref = reference_velocity(m, qref, kp.fps)
+    d = mujoco.MjData(m)
+    local = np.zeros((F, P, S, 3))
+    for f in range(F):
+        d.qpos[:] = qref[f]
+        mujoco.mj_kinematics(m, d)
+        for i, p in enumerate(lay.persons):
+            if separate:
+                targets[f, i] = d.site_xpos[scene.site_ids[i]]
+            R = d.xmat[p.root_body].reshape(3, 3)
+            local[f, i] = (targets[f, i] - d.xpos[p.root_body]) @ R
+    ctrl, root_torque = servo_feedforward(scene, qref, vref, kp.fps)
+    ref = Reference(
+        site_ids=scene.site_ids, site_local_m=local, site_world_m=targets, site_weight=weight, qpos=qref, qvel=vref,
+        ctrl=ctrl, root_torque_ff=root_torque, foot_contact=contact,
+    )
+    return ref, targets, weight
+
+
+def separate_reference(scene: Scene, qref: np.ndarray, smooth_frames: float = 2.0, clearance_m: float = 0.01) -> np.ndarray:
+    """``separate_persons`` on every frame; the corrections (tangent space) are
+    smoothed in time so that the separated reference stays smooth."""
+    from scipy.ndimage import gaussian_filter1d
+
+    m = scene.model
+    F = qref.shape[0]
+    delta = np.zeros((F, m.nv))
+    for f in range(F):
+        mujoco.mj_differentiatePos(m, delta[f], 1.0, qref[f], separate_persons(scene, qref[f], clearance_m=clearance_m))
+    if F > 2 and smooth_frames > 0:
+        delta = gaussian_filter1d(delta, smooth_frames, axis=0, mode="nearest")
+    out = qref.copy()
+    for f in range(F):
+        mujoco.mj_integratePos(m, out[f], delta[f], 1.0)
+    return out
+
+
+def servo_feedforward(scene: Scene, qref: np.ndarray, vref: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """Servo targets (frames, nu) that reproduce the inverse-dynamics torques of the
+    reference with ground reactions at the feet (``contact_inverse_dynamics``):
+    u = q̂ + (τ_id + kv·q̂̇) / kp, clamped to the control range. The residual root
+    servos get the same form with the root force the feet cannot supply; the
+    matching residual root torque (frames, persons, 3, world) is returned too.
+
+    Without this feed-forward a PD servo sags by τ/kp under gravity (~0.2 rad at
+    the stance knee).
+    """
+    m, lay = scene.model, scene.layout
+    tau, resid = contact_inverse_dynamics(m, lay, qref, vref, fps)
+    acts = np.concatenate([lay.servo_ids, lay.residual_ids])
+    dof = np.array([m.jnt_dofadr[m.actuator_trnid[a, 0]] for a in acts], dtype=np.int64)
+    qa = np.array([m.jnt_qposadr[m.actuator_trnid[a, 0]] for a in acts], dtype=np.int64)
+    kp = m.actuator_gainprm[acts, 0]
+    kv = -m.actuator_biasprm[acts, 2]
+    ctrl = np.zeros((qref.shape[0], m.nu))
+    ctrl[:, acts] = qref[:, qa] + (tau[:, dof] + kv * vref[:, dof]) / kp
+    lo, hi = m.actuator_ctrlrange[acts, 0], m.actuator_ctrlrange[acts, 1]
+    ctrl[:, acts] = np.clip(ctrl[:, acts], lo, hi)
+    return ctrl, resid[..., 3:]
+
+
+def _separation_cost(scene: Scene) -> np.ndarray:
+    """(nv,) relative cost of moving each DOF when separating persons: legs and
+    root position are expensive (the feet stay where they are), root rotation
+    less so, arms, spine and neck cheap (clinch overlaps are mostly arms)."""
+    m = scene.model
+    w = np.ones(m.nv)
+    for p in scene.layout.persons:
+        w[p.qvel_adr : p.qvel_adr + 3] = 100.0
+        w[p.qvel_adr + 3 : p.qvel_adr + 6] = 10.0
+        for j in range(m.njnt):
+            name = m.joint(j).name
+            if name.startswith(f"p{p.person_id}_") and any(k in name for k in ("_hip_", "_knee", "_ankle_")):
+                w[m.jnt_dofadr[j]] = 100.0
+    return w
+
+
+def separate_persons(
+    scene: Scene, qpos: np.ndarray, iters: int = 20, damping: float = 1e-3, clearance_m: float = 1e-3
+) -> np.ndarray:
+    """Remove inter-person overlap from one configuration by Gauss–Newton on the
+    contact depths (minimal weighted change of the DOFs, legs and root height
+    expensive), so that a simulation does not start from a deep interpenetration
+    (which MuJoCo resolves explosively) and a reference can be made contact-free."""
+    m, lay = scene.model, scene.layout
+    d = mujoco.MjData(m)
+    q = qpos.copy()
+    reg = damping * np.diag(_separation_cost(scene))
+    for _ in range(iters):
+        d.qpos[:] = q
+        mujoco.mj_fwdPosition(m, d)
+        depth, J = collision_depths(m, d, lay.geom_person, True)
+        if depth.size == 0 or depth.max() < 1e-4:
+            break
+        assert J is not None
+        r = depth + clearance_m
+        dq = -np.linalg.solve(J.T @ J + reg, J.T @ r)
+        mujoco.mj_integratePos(m, q, dq, 1.0)
+    return q
+
+
+def lift_off_floor(scene: Scene, qpos: np.ndarray) -> np.ndarray:
+    """Raise each person so that no geom penetrates the floor (initial state only)."""
+    m, lay = scene.model, scene.layout
+    d = mujoco.MjData(m)
+    q = qpos.copy()
+    d.qpos[:] = q
+    mujoco.mj_forward(m, d)
+    floor = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+    lift = np.zeros(len(lay.persons))
+    for c in range(d.ncon):
+        g1, g2 = d.contact.geom[c]
+        if floor not in (g1, g2):
+            continue
+        other = g2 if g1 == floor else g1
+        pi = lay.geom_person[other]
+        if pi >= 0:
+            lift[pi] = max(lift[pi], -d.contact.dist[c])
+    for i, p in enumerate(lay.persons):
+        q[p.qpos_adr + 2] += lift[i] + 1e-3 if lift[i] > 0 else 0.0
+    return q
+
+
+def contact_inverse_dynamics(
+    model: mujoco.MjModel,
+    layout: SceneLayout,
+    qref: np.ndarray,
+    vref: np.ndarray,
+    fps: float,
+    contact_height_m: float = 0.06,
+    friction: float = 0.8,
+    smooth_frames: float = 3.0,
+    force_reg: float = 1e-4,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse dynamics of the reference with ground reaction forces at the feet.
+
+    Per frame, ``mj_inverse`` without constraints gives the generalised forces of
+    the reference motion, whose root part W (6 per person) a free-floating body
+    cannot produce itself. It is distributed to the foot sites (heel, toes) lower
+    than ``contact_height_m`` as forces in a linearised friction cone (4 edges,
+    coefficient ``friction``), by non-negative least squares; the hinge torques
+    then are τ − Jᵀf. Whatever the feet cannot supply (flight, or a wrench outside
+    the cone) is left as the residual root wrench.
+
+    Returns ``(hinge_and_root_forces (frames, nv), residual (frames, persons, 6))``:
+    the first array holds τ at hinge DOFs (and W − Jᵀf at root DOFs); the residual
+    is world force (N) at the pelvis origin and world torque (N·m).
+    """
+    from scipy.ndimage import gaussian_filter1d
+    from scipy.optimize import nnls
+
+    d = mujoco.MjData(model)
+    F = qref.shape[0]
+    v_s = gaussian_filter1d(vref, smooth_frames, axis=0, mode="nearest") if F > 2 and smooth_frames > 0 else vref
+    acc = np.gradient(v_s, 1.0 / fps, axis=0) if F > 1 else np.zeros_like(vref)
+    edges = np.array([[friction, 0, 1], [-friction, 0, 1], [0, friction, 1], [0, -friction, 1]], dtype=float)
+    edges /= np.linalg.norm(edges, axis=1, keepdims=True)
+    feet = []
+    for p in layout.persons:
+        feet.append([p.site_ids[f"{s}_{n}"] for s in ("left", "right") for n in FOOT_SITES if f"{s}_{n}" in p.site_ids])
+    out = np.zeros((F, model.nv))
+    resid = np.zeros((F, len(layout.persons), 6))
+    jac = np.zeros((3, model.nv))
+    saved = int(model.opt.disableflags)
+    model.opt.disableflags = saved | int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
+    try:
+        for f in range(F):
+            d.qpos[:] = qref[f]
+            d.qvel[:] = vref[f]
+            d.qacc[:] = acc[f]
+            mujoco.mj_inverse(model, d)
+            tau = d.qfrc_inverse.copy()
+            for i, p in enumerate(layout.persons):
+                va = p.qvel_adr
+                W = tau[va : va + 6].copy()
+                low = [s for s in feet[i] if d.site_xpos[s, 2] < contact_height_m]
+                if low and W[2] > 0:
+                    jacs = []
+                    for s in low:
+                        mujoco.mj_jacSite(model, d, jac, None, int(s))
+                        jacs.append(jac.copy())
+                    # Columns: generalised force (root part) of a unit force along each cone edge.
+                    A = np.hstack([(J[:, va : va + 6].T @ edges.T) for J in jacs])  # (6, 4k)
+                    # Scaled unknowns c / |W|: the regulariser then only picks among exact solutions.
+                    scale = max(float(np.abs(W).max()), 1.0)
+                    Aa = np.vstack([A, np.sqrt(force_reg) * np.eye(A.shape[1])])
+                    c, _ = nnls(Aa, np.concatenate([W / scale, np.zeros(A.shape[1])]))
+                    c *= scale
+                    for k, J in enumerate(jacs):
+                        fk = edges.T @ c[4 * k : 4 * k + 4]
+                        tau -= J.T @ fk
+                R = d.xmat[p.root_body].reshape(3, 3)
+                resid[f, i, :3] = tau[va : va + 3]
+                resid[f, i, 3:] = R @ tau[va + 3 : va + 6]
+            out[f] = tau
+    finally:
+        model.opt.disableflags = saved
+    return out, resid
+
+
+def plant_feet(
+    targets: np.ndarray,
+    weight: np.ndarray,
+    names: tuple[str, ...],
+    fps: float,
+    sole_m: np.ndarray,
+    height_tol_m: float = 0.02,
+    speed_max_m_s: float = 0.3,
+    min_frames: int = 3,
+    blend_frames: int = 3,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Contact-consistent reference feet (pure numpy).
+
+    A foot is planted where its lowest point (heel, toes) is within
+    ``height_tol_m`` of the sole height ``sole_m`` (persons,) and its centre moves
+    slower than ``speed_max_m_s`` (5-frame smoothed), for at least ``min_frames``.
+    During a plant each foot point is held at its median position (z clamped to
+    the sole height or above), blended in and out over ``blend_frames``; elsewhere
+    foot points are only lifted to the sole height. Triangulation noise otherwise
+    makes planted feet skate and dip into the floor, which the simulated contact
+    then fights.
+
+    targets: (frames, persons, sites, 3); weight: (frames, persons, sites).
+    Returns (targets, contact (frames, persons, 2) for left/right).
+    """
+    from scipy.ndimage import uniform_filter1d
+
+    out = targets.copy()
+    F, P = targets.shape[:2]
+    contact = np.zeros((F, P, 2), dtype=bool)
+    for i in range(P):
+        for k, side in enumerate(("left", "right")):
+            idx = [names.index(f"{side}_{n}") for n in FOOT_SITES if f"{side}_{n}" in names]
+            if not idx:
+                continue
+            w = weight[:, i, idx] > 0
+            ok = w.any(axis=1)
+            pts = targets[:, i, idx]
+            z = np.where(w, pts[..., 2], np.inf).min(axis=1)
+            centre = np.where(w[..., None], pts, 0.0).sum(axis=1) / np.maximum(w.sum(axis=1), 1)[:, None]
+            v = np.zeros(F)
+            if F > 1:
+                v[1:] = np.linalg.norm(np.diff(centre[:, :2], axis=0), axis=-1) * fps
+                v[0] = v[1]
+            v = uniform_filter1d(v, 5, mode="nearest")
+            on = ok & (z < sole_m[i] + height_tol_m) & (v < speed_max_m_s)
+            # Keep runs of at least min_frames.
+            f = 0
+            while f < F:
+                if not on[f]:
+                    f += 1
+                    continue
+                g = f
+                while g < F and on[g]:
+                    g += 1
+                if g - f >= min_frames:
+                    contact[f:g, i, k] = True
+                    for j_local, j in enumerate(idx):
+                        okj = w[f:g, j_local]
+                        if not okj.any():
+                            continue
+                        hold = np.median(targets[f:g, i, j][okj], axis=0)
+                        hold[2] = max(hold[2], sole_m[i])
+                        for t in range(max(f - blend_frames, 0), min(g + blend_frames, F)):
+                            dist = max(f - t, t - (g - 1), 0)
+                            a = 1.0 - dist / (blend_frames + 1)
+                            out[t, i, j] = a * hold + (1.0 - a) * out[t, i, j]
+                f = g
+            for j in idx:
+                out[:, i, j, 2] = np.maximum(out[:, i, j, 2], sole_m[i])
+    return out, contact
