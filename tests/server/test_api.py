@@ -251,10 +251,7 @@ def test_viewer_route_503_without_launcher_or_url(client: TestClient, tokens: di
 
 def test_keypoints_json_names_follow_identities(client: TestClient, tokens: dict, bout_folder: Path,
                                                 settings: Settings) -> None:
-    if "triangulate" not in available_stages():
-        import pytest
-
-        pytest.skip("triangulate stage not in this build")
+    assert "triangulate" in available_stages()
     admin = auth(tokens["admin"])
     sid = make_bout(client, tokens["admin"], bout_folder)["id"]
     client.post("/api/jobs", json={"session_id": sid}, headers=admin)

@@ -39,8 +39,7 @@ def joints(d: dict, person: int) -> np.ndarray:
 
 def test_synthetic_bout_over_http_with_identity_swap(tmp_path: Path) -> None:
     stages = available_stages()
-    if "triangulate" not in stages:
-        pytest.skip(f"associate/triangulate not in this build (stages: {stages})")
+    assert {"associate", "triangulate"} <= set(stages)
     bout = make_session(tmp_path / "data" / "bout", n_frames=60, n_cameras=3, seed=0)
     home = tmp_path / "home"
     admin = create_user("admin", "admin", home=home)

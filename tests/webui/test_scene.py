@@ -77,10 +77,7 @@ def test_physics_geoms_bad_xml_falls_back(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_body_meshes_are_posed_in_the_background() -> None:
-    try:
-        from pipeline.backends.anny_body import DEFAULT_RIG, bone_names
-    except ImportError as e:  # torch/anny missing in this installation
-        pytest.skip(f"anny body backend unavailable: {e}")
+    from pipeline.backends.anny_body import DEFAULT_RIG, bone_names
     from pipeline.schema.results import BodyFit
     from webui.scene.body import BodyMeshCache
 
