@@ -9,8 +9,6 @@ ring of cameras (geometrically consistent, so association and triangulation work
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -19,16 +17,10 @@ FAST_STAGES: tuple[str, ...] = ("detect2d", "track", "associate", "triangulate")
 
 
 def available_stages(wanted: tuple[str, ...] = FAST_STAGES) -> tuple[str, ...]:
-    """The ``wanted`` stages whose step module exists in this build."""
-    return tuple(s for s in wanted if importlib.util.find_spec(f"pipeline.runner.steps.{s}") is not None)
+    """The ``wanted`` stages the runner knows."""
+    from pipeline.runner import get_specs
 
-
-def _has_synthetic() -> bool:
-    try:
-        mod = importlib.import_module("pipeline.synthetic")
-    except ImportError:
-        return False
-    return hasattr(mod, "make_demo_session")
+    return tuple(s for s in wanted if s in get_specs())
 
 
 def make_session(folder: Path, n_frames: int = 60, n_cameras: int = 3, seed: int = 0,
@@ -41,7 +33,7 @@ def make_session(folder: Path, n_frames: int = 60, n_cameras: int = 3, seed: int
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     stages = available_stages() if stages is None else stages
-    if use_synthetic and _has_synthetic():
+    if use_synthetic:
         from pipeline.synthetic import SyntheticConfig, make_demo_session
 
         make_demo_session(folder, SyntheticConfig(n_frames=n_frames, n_cameras=n_cameras, seed=seed))
