@@ -15,10 +15,11 @@ from typing import Any
 import numpy as np
 
 from pipeline.evaluate import metrics as M
+from pipeline.evaluate.physics_metrics import CapsuleProxy, inter_person_penetration_mm
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
-from pipeline.schema.joints import COCO17
+from pipeline.schema.joints import BODY_LIMBS, COCO17
 from pipeline.schema.keypoints3d import Keypoints3D
 
 
@@ -64,48 +65,14 @@ def _clean(x: float) -> float | None:
     return None if x is None or (isinstance(x, float) and math.isnan(x)) else round(float(x), 4)
 
 
-def _segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
-    """Closest distance between segments [p0,p1] and [q0,q1], batched over leading dims."""
-    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
-    a = (d1 * d1).sum(-1)
-    e = (d2 * d2).sum(-1)
-    f = (d2 * r).sum(-1)
-    c = (d1 * r).sum(-1)
-    b = (d1 * d2).sum(-1)
-    denom = a * e - b * b
-    s = np.clip(np.where(denom > 1e-12, (b * f - c * e) / np.maximum(denom, 1e-12), 0.0), 0, 1)
-    t = (b * s + f) / np.maximum(e, 1e-12)
-    t_c = np.clip(t, 0, 1)
-    s = np.where(t < 0, np.clip(-c / np.maximum(a, 1e-12), 0, 1), np.where(t > 1, np.clip((b - c) / np.maximum(a, 1e-12), 0, 1), s))
-    cp = p0 + d1 * s[..., None]
-    cq = q0 + d2 * t_c[..., None]
-    return np.asarray(np.linalg.norm(cp - cq, axis=-1))
-
-
 def capsule_penetration_mm(kp: Keypoints3D, radius_m: float) -> np.ndarray:
     """(frames,) max overlap between bone capsules of different persons, in mm (0 = apart).
 
-    A keypoint-only proxy used when no physics result exists: every limb is a capsule
-    of ``radius_m`` around its bone.
+    A keypoint-only proxy used for the timeline flags: every limb of ``BODY_LIMBS`` is a
+    capsule of ``radius_m`` (the physics metrics use anatomical radii instead).
     """
-    from pipeline.schema.joints import BODY_LIMBS, bone_indices
-
-    bones = np.array(bone_indices(kp.joint_names, BODY_LIMBS))
-    F = kp.n_frames
-    out = np.zeros(F)
-    if kp.n_persons < 2 or bones.size == 0:
-        return out
-    X, ok = kp.xyz_m, kp.valid
-    for i in range(kp.n_persons):
-        for j in range(i + 1, kp.n_persons):
-            a0, a1 = X[:, i, bones[:, 0]], X[:, i, bones[:, 1]]  # (F, B, 3)
-            b0, b1 = X[:, j, bones[:, 0]], X[:, j, bones[:, 1]]
-            d = _segment_distance(a0[:, :, None], a1[:, :, None], b0[:, None], b1[:, None])  # (F, B, B)
-            va = ok[:, i, bones[:, 0]] & ok[:, i, bones[:, 1]]
-            vb = ok[:, j, bones[:, 0]] & ok[:, j, bones[:, 1]]
-            pen = np.where(va[:, :, None] & vb[:, None], np.maximum(0.0, 2 * radius_m - d), 0.0)
-            out = np.maximum(out, pen.max(axis=(1, 2)) * 1000.0)
-    return out
+    proxy = CapsuleProxy(segments=tuple((a, b, radius_m) for a, b in BODY_LIMBS))
+    return inter_person_penetration_mm(kp, proxy)
 
 
 def _source_metrics(est: Keypoints3D, gt: Keypoints3D) -> dict[str, Any]:
