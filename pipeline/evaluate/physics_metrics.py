@@ -51,8 +51,9 @@ def _point(kp: Keypoints3D, name: str) -> tuple[np.ndarray, np.ndarray]:
     return kp.xyz_m[:, :, i], kp.valid[:, :, i]
 
 
-def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
-    """Closest distance between segments [p0, p1] and [q0, q1] (broadcast over leading dims)."""
+def segment_closest_params(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters (s, t) in [0, 1] of the closest points ``p0 + s (p1 - p0)`` and
+    ``q0 + t (q1 - q0)`` of two segments (broadcast over leading dims)."""
     d1, d2, r = p1 - p0, q1 - q0, p0 - q0
     a = np.sum(d1 * d1, -1)
     e = np.sum(d2 * d2, -1)
@@ -71,8 +72,14 @@ def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndar
     t_c = np.clip(t, 0.0, 1.0)
     s = np.where(a <= eps, 0.0, s)
     t_c = np.where(a <= eps, np.where(e > eps, np.clip(f / e_s, 0.0, 1.0), 0.0), t_c)
-    cp = p0 + d1 * s[..., None]
-    cq = q0 + d2 * t_c[..., None]
+    return s, t_c
+
+
+def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
+    """Closest distance between segments [p0, p1] and [q0, q1] (broadcast over leading dims)."""
+    s, t = segment_closest_params(p0, p1, q0, q1)
+    cp = p0 + (p1 - p0) * s[..., None]
+    cq = q0 + (q1 - q0) * t[..., None]
     return np.linalg.norm(cp - cq, axis=-1)
 
 

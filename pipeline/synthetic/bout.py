@@ -18,6 +18,7 @@ from pipeline.synthetic.motion import boxer_arms, boxer_trunk, punch_peak_speeds
 from pipeline.synthetic.occlusion import capsules, occluded
 from pipeline.synthetic.render2d import render_tracks
 from pipeline.synthetic.rig import make_rig
+from pipeline.synthetic.separate import separate_persons
 from pipeline.synthetic.skeleton import BodyDims, make_body
 from pipeline.synthetic.walker import walker_joints
 
@@ -104,6 +105,15 @@ def _calibrated_boxers(
     return ch, joints, contact, speeds
 
 
+def _planted_joints(contact: np.ndarray) -> np.ndarray:
+    """(F, 2, 23) bool: the joints of feet in contact (they must not move)."""
+    pinned = np.zeros((*contact.shape[:2], len(COCO17_FEET)), dtype=bool)
+    for k, side in enumerate(("left", "right")):
+        for part in ("ankle", "heel", "big_toe", "small_toe"):
+            pinned[:, :, COCO17_FEET.index(f"{side}_{part}")] = contact[:, :, k]
+    return pinned
+
+
 def make_bout(cfg: SyntheticConfig = SyntheticConfig()) -> SyntheticBout:
     """Generate the bout described by ``cfg`` (deterministic: same config -> same arrays)."""
     ss = np.random.SeedSequence(cfg.seed)
@@ -111,6 +121,7 @@ def make_bout(cfg: SyntheticConfig = SyntheticConfig()) -> SyntheticBout:
     bodies = [make_body(h, a, rng_body) for h, a in zip(BOXER_HEIGHTS_M, BOXER_ARM_RATIOS, strict=True)]
     ch = make_choreography(cfg.n_frames, cfg.fps, cfg.clinch, rng_choreo)
     ch, boxers, contact, speeds = _calibrated_boxers(ch, bodies, cfg.fps)
+    boxers = separate_persons(boxers, _planted_joints(contact))
     rig = make_rig(cfg.n_cameras, cfg.image_size_wh, cfg.fps, cfg.distortion, rng_rig)
 
     persons = [boxers[:, 0], boxers[:, 1]]
