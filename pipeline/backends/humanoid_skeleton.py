@@ -39,16 +39,21 @@ class GeomDef:
     """A collision primitive in its body's frame.
 
     ``kind`` is ``"capsule"`` (``a_m``, ``b_m`` segment ends, ``radius_m``),
-    ``"sphere"`` (centre ``a_m``, ``radius_m``) or ``"box"`` (centre ``a_m``,
-    half sizes ``b_m``).
+    ``"sphere"`` (centre ``a_m``, ``radius_m``), ``"box"`` (centre ``a_m``,
+    half sizes ``b_m``) or ``"mesh"`` (the convex hull of ``vertices_m``, in the
+    body frame; ``a_m``, ``b_m`` and ``radius_m`` are unused, conventionally 0).
     """
 
     kind: str
     a_m: tuple[float, float, float]
     b_m: tuple[float, float, float]
     radius_m: float
+    vertices_m: tuple[tuple[float, float, float], ...] | None = None
+    """Points whose convex hull is the geom (``kind == "mesh"`` only)."""
 
     def volume_m3(self) -> float:
+        if self.kind == "mesh":
+            return hull_volume_m3(self.vertices_m)
         if self.kind == "capsule":
             length = float(np.linalg.norm(np.subtract(self.b_m, self.a_m)))
             return float(np.pi * self.radius_m**2 * length + 4.0 / 3.0 * np.pi * self.radius_m**3)
@@ -57,6 +62,20 @@ class GeomDef:
         if self.kind == "box":
             return float(8.0 * np.prod(self.b_m))
         raise ValueError(f"unknown geom kind {self.kind!r}")
+
+
+def hull_volume_m3(vertices_m: tuple[tuple[float, float, float], ...] | np.ndarray | None) -> float:
+    """Volume (m³) of the convex hull of ``vertices_m`` (what MuJoCo uses for a mesh geom
+    given by its vertices only). Raises ``ValueError`` for fewer than 4 or coplanar points."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    pts = np.asarray(vertices_m if vertices_m is not None else (), dtype=float).reshape(-1, 3)
+    if pts.shape[0] < 4:
+        raise ValueError(f"mesh geom needs >= 4 vertices, got {pts.shape[0]}")
+    try:
+        return float(ConvexHull(pts).volume)
+    except QhullError as e:
+        raise ValueError(f"mesh geom vertices span no volume ({pts.shape[0]} points): {e}") from e
 
 
 @dataclass(frozen=True)

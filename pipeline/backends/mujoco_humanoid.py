@@ -2,7 +2,8 @@
 
 Each person ``pid`` becomes a subtree ``p{pid}_pelvis`` with a free root joint
 ``p{pid}_root``, hinge joints ``p{pid}_<joint>`` (three per ball joint, anatomical
-ranges), collision geoms (capsules/spheres/box soles, density 985 kg/m³) and one
+ranges), collision geoms (capsules/spheres/box soles, or convex-hull meshes given
+inline as ``<asset><mesh vertex=...>``; density 985 kg/m³) and one
 site per tracked keypoint ``p{pid}_<keypoint>``.
 
 Actuation (chosen by a stability test, see ``tests/backends/test_humanoid.py`` and
@@ -147,7 +148,10 @@ def person_mass_kg(skel: Skeleton, density_kg_m3: float = DENSITY_KG_M3) -> floa
     return skel.geom_volume_m3() * density_kg_m3
 
 
-def _person_xml(pid: int, skel: Skeleton, cfg: HumanoidConfig, offset: np.ndarray, mass: float) -> tuple[str, list[str]]:
+def _person_xml(
+    pid: int, skel: Skeleton, cfg: HumanoidConfig, offset: np.ndarray, mass: float, assets: list[str] | None = None
+) -> tuple[str, list[str]]:
+    """Body tree XML and actuator lines of one person; mesh assets are appended to ``assets``."""
     pre = f"p{pid}_"
     if cfg.self_collision == "none":
         # Bit 0 is the floor; person k owns bit k+1 and collides with everyone else's.
@@ -199,6 +203,15 @@ def _person_xml(pid: int, skel: Skeleton, cfg: HumanoidConfig, offset: np.ndarra
                 lines.append(f'{ind}  <geom {common} type="sphere" pos="{_f(g.a_m)}" size="{g.radius_m:.5g}"/>')
             elif g.kind == "box":
                 lines.append(f'{ind}  <geom {common} type="box" pos="{_f(g.a_m)}" size="{_f(g.b_m)}" class="sole"/>')
+            elif g.kind == "mesh":
+                if assets is None or g.vertices_m is None:
+                    raise ValueError(f"mesh geom {gname} needs vertices and an asset list")
+                # Vertices only: MuJoCo builds their convex hull; inertia="convex" takes
+                # mass and inertia from that hull's volume at the default density.
+                verts = " ".join(_f(v) for v in g.vertices_m)
+                assets.append(f'    <mesh name="{gname}" vertex="{verts}" inertia="convex"/>')
+                sole = ' class="sole"' if k == 0 and b.name.endswith("_foot") else ""
+                lines.append(f'{ind}  <geom {common} type="mesh" mesh="{gname}"{sole}/>')
             else:
                 raise ValueError(f"unsupported geom kind {g.kind!r} in body {b.name}")
         for sname, spos in b.sites:
@@ -241,15 +254,17 @@ def build_scene_mjcf(
     bodies: list[str] = []
     acts: list[str] = []
     excludes: list[str] = []
+    assets: list[str] = []
     for i, (pid, skel) in enumerate(zip(person_ids, skeletons, strict=True)):
         mass = person_mass_kg(skel, cfg.density_kg_m3)
         offset = np.array([0.0, cfg.person_spacing_m * i, skel.pelvis_height_m])
-        xml, a = _person_xml(pid, skel, cfg, offset, mass)
+        xml, a = _person_xml(pid, skel, cfg, offset, mass, assets)
         bodies.append(xml)
         acts += a
         if cfg.self_collision == "adjacent_filtered":
             excludes += [f'    <exclude body1="p{pid}_{a_}" body2="p{pid}_{b_}"/>' for a_, b_ in _excluded_pairs(skel)]
     fr = cfg.friction
+    asset_xml = f"  <asset>\n{chr(10).join(assets)}\n  </asset>\n" if assets else ""
     return f"""<mujoco model="cornerman_scene">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{1.0 / (fps * cfg.substeps):.6g}" integrator="implicitfast" iterations="{cfg.solver_iterations}" ls_iterations="10"
@@ -266,7 +281,7 @@ def build_scene_mjcf(
   <visual>
     <headlight ambient="0.4 0.4 0.4"/>
   </visual>
-  <worldbody>
+{asset_xml}  <worldbody>
     <light pos="0 0 6" dir="0 0 -1"/>
     <geom name="floor" type="plane" size="20 20 0.1" contype="1" conaffinity="2147483647" friction="{fr:.3g} 0.01 0.001"
           margin="{cfg.floor_margin_m:.4g}" rgba="0.85 0.85 0.8 1"/>

@@ -19,17 +19,19 @@ import numpy as np
 
 from pipeline.evaluate.physics_metrics import physics_metrics
 from pipeline.schema.keypoints3d import Keypoints3D
+from pipeline.schema.results import BodyFit
 from pipeline.stages.physics import PhysicsConfig, PhysicsInputs
 from pipeline.stages.physics import run as run_physics
 
 
-def _kinematic_input(bout: Any, source: str, seed: int) -> Keypoints3D:
+def _kinematic_input(bout: Any, source: str, seed: int) -> tuple[Keypoints3D, BodyFit | None]:
+    """The kinematic motion the physics starts from, and its BodyFit when it is a fit."""
     if source == "noisy_gt":
         from scipy.ndimage import gaussian_filter1d
 
         rng = np.random.default_rng(seed)
         noise = gaussian_filter1d(rng.normal(scale=0.024, size=bout.gt.xyz_m.shape), 2.0, axis=0)
-        return bout.gt.replace(xyz_m=bout.gt.xyz_m + noise, source="fit")
+        return bout.gt.replace(xyz_m=bout.gt.xyz_m + noise, source="fit"), None
     from pipeline.schema.association import Association
     from pipeline.stages.triangulate import TriangulateConfig
     from pipeline.stages.triangulate import run as run_triangulate
@@ -43,18 +45,19 @@ def _kinematic_input(bout: Any, source: str, seed: int) -> Keypoints3D:
     )
     _, tri = run_triangulate(bout.tracks, assoc, bout.rig, TriangulateConfig())
     if source == "triangulation":
-        return tri
+        return tri, None
     from pipeline.stages.fit import FitConfig
     from pipeline.stages.fit import run as run_fit
 
-    return run_fit(tri, bout.tracks, assoc, bout.rig, FitConfig()).keypoints3d
+    fit = run_fit(tri, bout.tracks, assoc, bout.rig, FitConfig())
+    return fit.keypoints3d, fit.bodyfit
 
 
 def run_bench(
     n_frames: int = 150,
     cameras: int = 4,
     seed: int = 0,
-    kinematic: Literal["triangulation", "fit", "noisy_gt"] = "triangulation",
+    kinematic: Literal["triangulation", "fit", "noisy_gt"] = "fit",
     modes: tuple[str, ...] = ("multi", "single"),
     **physics_overrides: Any,
 ) -> list[dict]:
@@ -64,7 +67,7 @@ def run_bench(
 
     bout = make_bout(SyntheticConfig(seed=seed, n_cameras=cameras, n_frames=n_frames))
     gt = bout.gt
-    kin = _kinematic_input(bout, kinematic, seed)
+    kin, bodyfit = _kinematic_input(bout, kinematic, seed)
     rows: list[dict] = [
         {"method": "ground truth", **physics_metrics(gt, gt, bout.foot_contact)},
         {"method": f"kinematic ({kinematic})", **physics_metrics(kin, gt, bout.foot_contact)},
@@ -73,12 +76,12 @@ def run_bench(
     for mode in modes:
         cfg = PhysicsConfig(mode=mode, **physics_overrides)  # type: ignore[arg-type]
         t0 = time.perf_counter()
-        out = run_physics(PhysicsInputs(keypoints=kin), cfg)
+        out = run_physics(PhysicsInputs(keypoints=kin, bodyfit=bodyfit), cfg)
         wall = time.perf_counter() - t0
         st = out.stats
         rows.append(
             {
-                "method": f"physics ({mode})",
+                "method": f"physics ({mode}, {st['skeleton']} {st['geometry']})",
                 **physics_metrics(out.keypoints, gt, bout.foot_contact),
                 "compute_s": wall,
                 "realtime_factor": wall / motion_s,

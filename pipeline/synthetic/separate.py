@@ -131,7 +131,7 @@ def _shape_round(x: np.ndarray, x0: np.ndarray, free: np.ndarray, names: tuple[s
         idx = [names.index(n) for n in group if n in names]
         for p in range(x.shape[1]):
             target = _kabsch_project(x[:, p, idx], x0[:, p, idx])
-            movable = free[:, p, idx].all(axis=1)  # a planted foot stays where it is
+            movable = np.asarray(free[:, p, idx].all(axis=1))  # a planted foot stays where it is
             x[:, p, idx] = np.where(movable[:, None, None], target, x[:, p, idx])
     for a, b in _LIMBS:
         ia, ib = names.index(a), names.index(b)
@@ -211,7 +211,7 @@ def _exact_shape(x: np.ndarray, x0: np.ndarray, pinned: np.ndarray, names: tuple
     for group in _RIGID_GROUPS:
         idx = [ix[n] for n in group]
         for p in range(x.shape[1]):
-            movable = ~pinned[:, p, idx].any(axis=1)
+            movable = np.asarray(~pinned[:, p, idx].any(axis=1))
             x[:, p, idx] = np.where(
                 movable[:, None, None], _kabsch_project(x[:, p, idx], x0[:, p, idx]), x[:, p, idx]
             )
