@@ -99,3 +99,29 @@ def test_body_meshes_are_posed_in_the_background() -> None:
     np.testing.assert_allclose(v12.mean(axis=0) - v00.mean(axis=0), [1.0, 0.2, 0.0], atol=1e-3)
     assert 1.5 < v00[:, 2].max() - v00[:, 2].min() < 2.0  # a standing adult
     assert cache.get(0, 3) is None
+
+
+def test_physics_mesh_geoms_are_drawn(tmp_path: Path) -> None:
+    """Convex-hull (mesh) geoms of the BodyFit humanoid are drawn from the compiled model."""
+    pytest.importorskip("mujoco")
+    import dataclasses
+
+    d = load_session_data(build_session(tmp_path, n_frames=3, physics=True))
+    xml = tmp_path / "mesh.xml"
+    xml.write_text(
+        '<mujoco><asset><mesh name="tet" vertex="0 0 0  0.2 0 0  0 0.2 0  0 0 0.2"/></asset>'
+        '<worldbody><body name="p0_pelvis"><freejoint/><geom type="mesh" mesh="tet"/></body>'
+        '<body name="p1_pelvis"><freejoint/><geom type="sphere" size="0.1"/></body>'
+        "</worldbody></mujoco>"
+    )
+    F = d.physics.qpos.shape[0]
+    qpos = np.tile([0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0] * 2, (F, 1))
+    qpos[:, 0] = np.arange(F) * 0.1  # person 0 slides along x
+    res = dataclasses.replace(d.physics, qpos=qpos, qvel=np.zeros((F, 12)))
+    pg = load_physics_geoms(xml, res)
+    assert pg is not None and pg.person_ids == [0, 1]
+    v0, f0 = pg.person_mesh(0, 0)
+    v2, _ = pg.person_mesh(0, 2)
+    assert v0.shape == (4, 3) and f0.shape[1] == 3 and f0.max() < 4
+    np.testing.assert_allclose(v0.min(axis=0), [0.0, 0.0, 1.0], atol=1e-5)  # the tetrahedron at its pose
+    np.testing.assert_allclose(v2 - v0, np.tile([0.2, 0.0, 0.0], (4, 1)), atol=1e-5)

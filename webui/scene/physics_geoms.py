@@ -21,7 +21,17 @@ from webui.scene.meshes import box_mesh, capsule_mesh, cylinder_mesh, ellipsoid_
 log = logging.getLogger(__name__)
 
 # mjtGeom values (stable MuJoCo ABI): plane 0, hfield 1, sphere 2, capsule 3, ellipsoid 4, cylinder 5, box 6, mesh 7.
-_SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX = 2, 3, 4, 5, 6
+_SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX, _MESH = 2, 3, 4, 5, 6, 7
+
+
+def _mesh_template(model: Any, g: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """A mesh geom's vertices (in the geom frame: MuJoCo re-centres meshes on compile) and faces."""
+    mid = int(model.geom_dataid[g])
+    if mid < 0:
+        return None
+    va, vn = int(model.mesh_vertadr[mid]), int(model.mesh_vertnum[mid])
+    fa, fn = int(model.mesh_faceadr[mid]), int(model.mesh_facenum[mid])
+    return np.array(model.mesh_vert[va : va + vn], dtype=np.float64), np.array(model.mesh_face[fa : fa + fn], dtype=np.int64)
 
 
 def _geom_template(gtype: int, size: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -35,7 +45,7 @@ def _geom_template(gtype: int, size: np.ndarray) -> tuple[np.ndarray, np.ndarray
         return cylinder_mesh(float(size[0]), float(size[1]))
     if gtype == _BOX:
         return box_mesh(size)
-    return None  # planes (the floor), height fields and meshes are not part of a humanoid
+    return None  # planes (the floor) and height fields are not part of a humanoid; meshes: _mesh_template
 
 
 class PhysicsGeoms:
@@ -68,7 +78,8 @@ class PhysicsGeoms:
                 body_name = m.body(int(m.geom_bodyid[g])).name
                 if not body_name.startswith(pre):
                     continue
-                tpl = _geom_template(int(m.geom_type[g]), np.asarray(m.geom_size[g]))
+                gtype = int(m.geom_type[g])
+                tpl = _mesh_template(m, g) if gtype == _MESH else _geom_template(gtype, np.asarray(m.geom_size[g]))
                 if tpl is None:
                     continue
                 parts.append(tpl)
