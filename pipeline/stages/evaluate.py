@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.evaluate import metrics as M
-from pipeline.evaluate.physics_metrics import CapsuleProxy, inter_person_penetration_mm
+from pipeline.evaluate.physics_metrics import CapsuleProxy, inter_person_penetration_mm, physics_metrics
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
@@ -75,6 +75,25 @@ def capsule_penetration_mm(kp: Keypoints3D, radius_m: float) -> np.ndarray:
     return inter_person_penetration_mm(kp, proxy)
 
 
+PLAUSIBILITY_SOURCES = ("filtered", "fit", "physics")
+"""Sources with gap-free joints, scored for physical plausibility (raw triangulation has
+holes that would read as foot skating)."""
+
+
+def _plausibility_metrics(kp: Keypoints3D) -> dict[str, Any]:
+    """Inter-person and ground penetration, foot skating (contact = foot below 3 cm) and
+    smoothness, as in ``cornerman bench physics`` (anatomical capsule proxies)."""
+    pm = physics_metrics(kp)
+    keys = (
+        "inter_penetration_max_mm",
+        "inter_penetration_mean_mm",
+        "ground_penetration_max_mm",
+        "foot_skate_mm_per_frame",
+        "accel_mm_per_frame2",
+    )
+    return {k: _clean(pm[k]) for k in keys}
+
+
 def _source_metrics(est: Keypoints3D, gt: Keypoints3D) -> dict[str, Any]:
     mapping = M.match_persons(est, gt)
     coco = tuple(n for n in COCO17 if n in est.joint_names)
@@ -122,6 +141,8 @@ def run(inp: EvaluateInputs, cfg: EvaluateConfig) -> tuple[dict[str, Any], Probl
     out: dict[str, Any] = {"sources": {}}
     for name, kp in inp.sources.items():
         m: dict[str, Any] = {"bone_length_std_mm": _clean(M.bone_length_std(kp))}
+        if name in PLAUSIBILITY_SOURCES:
+            m.update(_plausibility_metrics(kp))
         if inp.gt is not None:
             m.update(_source_metrics(kp, inp.gt))
         out["sources"][name] = m

@@ -51,3 +51,22 @@ def test_evaluate_perfect_estimate_and_flags() -> None:
     assert flags.flags[:, 0].tolist() == [f == 4 for f in range(10)]
     # 1 px keypoint noise in make_tracks: no frame exceeds the 15 px threshold.
     assert not flags.flags[:, 1].any() and flags.reproj_err_px.max() < 5.0
+
+
+def test_evaluate_reports_physical_plausibility() -> None:
+    """Gap-free sources get penetration, ground penetration and foot skating; raw does not."""
+    rig = make_rig(3)
+    tracks, _ = make_tracks(rig, n_frames=4)
+    kp = _two_people(4, np.array([2.0, 2.0, 0.10, 0.10]))
+    xyz = kp.xyz_m.copy()
+    xyz[:, :, 0, 2] = -0.02  # the lowest point 2 cm under the floor
+    xyz[:, :, 15:17, 2] = 0.01  # ankles on the floor: feet in contact
+    xyz[:, 0, :, 0] += np.arange(4)[:, None] * 0.01  # person 0 slides 1 cm per frame, feet included
+    kp = kp.replace(xyz_m=xyz)
+    assoc = Association(np.array([0, 1]), ("A", "B"), tracks.track_id.copy(), np.ones(tracks.n_dets))
+    metrics, _ = run(EvaluateInputs(rig, tracks, assoc, {"fit": kp, "raw": kp.replace(source="triangulation")}), EvaluateConfig())
+    fit = metrics["sources"]["fit"]
+    assert fit["ground_penetration_max_mm"] == 20.0
+    assert fit["inter_penetration_max_mm"] > 0.0
+    assert abs(fit["foot_skate_mm_per_frame"] - 5.0) < 0.01  # 10 mm/frame for one of two persons
+    assert "foot_skate_mm_per_frame" not in metrics["sources"]["raw"]
