@@ -57,7 +57,7 @@ def test_evaluate_reports_physical_plausibility() -> None:
     """Gap-free sources get penetration, ground penetration and foot skating; raw does not."""
     rig = make_rig(3)
     tracks, _ = make_tracks(rig, n_frames=4)
-    kp = _two_people(4, np.array([2.0, 2.0, 0.10, 0.10]))
+    kp = _two_people(4, np.full(4, 0.10))
     xyz = kp.xyz_m.copy()
     xyz[:, :, 0, 2] = -0.02  # the lowest point 2 cm under the floor
     xyz[:, :, 15:17, 2] = 0.01  # ankles on the floor: feet in contact
