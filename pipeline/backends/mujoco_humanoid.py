@@ -68,7 +68,10 @@ class HumanoidConfig:
     """``adjacent_filtered``: a person's parts collide except parent/child, siblings
     and grandparent pairs; ``none``: only inter-person and ground contacts."""
     friction: float = 1.0
-    """Sliding friction of every geom (the floor's too)."""
+    """Sliding friction of the floor and the soles (MuJoCo uses the larger of two geoms')."""
+    body_friction: float = 1.0
+    """Sliding friction of the other body geoms: contacts between the two athletes use
+    it (skin, sweat, gloves), contacts of a body part with the floor the floor's."""
     floor_margin_m: float = 0.0
     """Floor contact margin: the soft contact settles ~2-3 mm into its margin, so
     soles rest on z ≈ 0 instead of sinking into the floor."""
@@ -271,10 +274,10 @@ def build_scene_mjcf(
           actuatorgroupdisable="3"/>
   <default>
     <joint damping="{cfg.joint_damping:.5g}" limited="true"/>
-    <geom density="{cfg.density_kg_m3:.6g}" friction="{fr:.3g} 0.01 0.001" condim="3" rgba="0.7 0.6 0.5 1"
+    <geom density="{cfg.density_kg_m3:.6g}" friction="{cfg.body_friction:.3g} 0.01 0.001" condim="3" rgba="0.7 0.6 0.5 1"
           solref="{cfg.body_solref_timeconst_s:.4g} 1"/>
     <default class="sole">
-      <geom rgba="0.3 0.3 0.3 1" solref="0.02 1"/>
+      <geom rgba="0.3 0.3 0.3 1" solref="0.02 1" friction="{fr:.3g} 0.01 0.001"/>
     </default>
     <site rgba="1 0 0 1" group="3"/>
   </default>

@@ -89,6 +89,8 @@ class PhysicsConfig:
     """Joint armature (kg·m²) of the strongest joints of a 75 kg person (scaled by
     strength and mass): numerical stability at the video rate, at the price of
     extra inertia that slows fast limbs (see ``HumanoidConfig.armature``)."""
+    body_friction: float = 1.0
+    """Sliding friction between the athletes' body geoms (soles and floor: 1.0)."""
     servo_torque_per_kg: float = 6.0
     """Servo torque limit (N·m per kg of body mass, times the joint's strength)."""
     body_solref_s: float = 0.02
@@ -218,6 +220,7 @@ def run(
         body_solref_timeconst_s=cfg.body_solref_s,
         residual_saturation_m=cfg.residual_saturation_m,
         armature=cfg.armature,
+        body_friction=cfg.body_friction,
     )
     scfg = mp.SolverConfig(
         window=cfg.window,
