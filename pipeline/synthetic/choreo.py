@@ -27,7 +27,7 @@ PHASE_S: dict[str, tuple[float, float]] = {
 """Duration range (seconds) of each phase kind."""
 
 CLINCH_DISTANCE_M = 0.45
-"""Distance between the two stance centres while clinching (torsos then ~0.3 m apart)."""
+"""Distance between the two stance centres while clinching (torsos then ~0.35 m apart)."""
 
 NOMINAL_PATH_M: dict[str, float] = {"jab": 0.45, "cross": 0.6, "lead_hook": 0.62}
 """Rough fist path length per punch kind (first guess of the punch duration)."""

@@ -13,8 +13,10 @@ is scored against. ``separate_persons`` removes the overlap with position-based 
   heel, toes) are projected back onto rigid copies of themselves (Kabsch), the limbs
   and the neck onto their lengths;
 - planted feet (``pinned``) never move, so separation adds no foot skating;
-- the correction field is smoothed over time between rounds so that the motion stays
-  smooth, and a final round without smoothing leaves no overlap.
+- the correction field is smoothed over time between rounds (which aim ``smooth_margin_m``
+  further out) so that the motion stays smooth, and a final round without smoothing
+  leaves no overlap. The ground truth's mean acceleration grows from 5.26 to 5.82
+  mm/frame² on the default bout (seed 0): the clinch really changes the motion.
 
 Pure numpy; ``make_bout`` applies it to the two boxers after their arms are placed.
 """
@@ -79,7 +81,7 @@ def _contact_round(
     x: np.ndarray, free: np.ndarray, proxy: CapsuleProxy, clearance_m: float, names: tuple[str, ...]
 ) -> float:
     """One Jacobi round of contact corrections in place (all capsule pairs at once);
-    returns the deepest overlap (m)."""
+    returns the deepest overlap including ``clearance_m`` (m; 0 = every pair clear)."""
     F, P, J = x.shape[:3]
     segs = [(_end_joints(a, names), _end_joints(b, names), r) for a, b, r in proxy.segments]
     S = len(segs)
@@ -106,7 +108,7 @@ def _contact_round(
             hit = pen > 0
             if not hit.any():
                 continue
-            deepest = max(deepest, float((pen[hit] - clearance_m).max()))
+            deepest = max(deepest, float(pen[hit].max()))
             fallback = (a0[:, 0] - b0[:, 0])[:, None, None, :]
             n = np.where((dist > 1e-9)[..., None], diff, fallback)
             n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-9)
@@ -163,7 +165,8 @@ def separate_persons(
     clearance_m: float = 0.002,
     rounds: int = 4,
     iters: int = 25,
-    smooth_frames: float = 2.0,
+    smooth_frames: float = 4.0,
+    smooth_margin_m: float = 0.02,
 ) -> np.ndarray:
     """(F, P, J, 3) joints with no capsule overlap between persons (see module docstring).
 
@@ -184,8 +187,11 @@ def separate_persons(
     x = x0.copy()
     free = ~pinned[near]
     for r in range(rounds + 1):
+        # Smoothed rounds aim further out, so that smoothing leaves little for the last,
+        # unsmoothed round to fix (its corrections are the only non-smooth ones).
+        aim = clearance_m + (smooth_margin_m if r < rounds else 0.0)
         for _ in range(iters):
-            deepest = _contact_round(x, free, proxy, clearance_m, joint_names)
+            deepest = _contact_round(x, free, proxy, aim, joint_names)
             _shape_round(x, x0, free, joint_names)
             if deepest <= 0.0:
                 break

@@ -8,6 +8,7 @@ import pytest
 from pipeline.schema.joints import BONES, COCO17_FEET
 from pipeline.synthetic import SOLE_HEIGHT_M, SyntheticBout, SyntheticConfig, make_bout
 from pipeline.synthetic.skeleton import J
+from pipeline.synthetic.stats import CLINCH_TORSO_DISTANCE_M
 
 FEET_POINTS = {
     0: ("left_ankle", "left_heel", "left_big_toe", "left_small_toe"),
@@ -124,7 +125,7 @@ def test_clinch_bodies_touch_and_arms_wrap(default_bout: SyntheticBout) -> None:
     xyz = default_bout.gt.xyz_m
     tc = _torso_centres(xyz)
     d = np.linalg.norm(tc[:, 0] - tc[:, 1], axis=1)
-    clinch = np.flatnonzero(d < 0.33)
+    clinch = np.flatnonzero(d < CLINCH_TORSO_DISTANCE_M)
     assert clinch.size >= 5, d.min()
     # In the clinch each boxer has a hand behind the other's back.
     for p in range(2):
