@@ -37,7 +37,7 @@ from pipeline.backends.anny_fit_init import (
 from pipeline.backends.anny_fit_terms import MeshMoments, lever_arms, rest_tails, sole_vertices
 from pipeline.backends.anny_fk import SparseKeypoints, keypoints_from_bones
 from pipeline.backends.anny_model import AnnyBody, anny_body
-from pipeline.backends.anny_priors import GMMPrior, joint_limit_penalty, joint_limit_tables
+from pipeline.backends.anny_priors import joint_limit_penalty, joint_limit_tables, load_pose_prior
 from pipeline.schema.joints import COCO17_FEET, FOOT_JOINTS
 from pipeline.stages.fit_config import FitConfig
 
@@ -131,7 +131,7 @@ def _fit(
         torch.as_tensor(a) for a in joint_limit_tables(body.bone_names, heads_p[0].numpy(), tails)
     )
     lo, hi = torch.nan_to_num(lo, neginf=-1e6), torch.nan_to_num(hi, posinf=1e6)
-    prior = GMMPrior.load(cfg.pose_prior_path) if cfg.pose_prior_path else None
+    prior = load_pose_prior(cfg.pose_prior_path, body.bone_names, cfg.rig) if cfg.w_prior > 0 else None
     moments = MeshMoments(body, coeffs) if cfg.w_smooth > 0 else None
     sparse_kp = SparseKeypoints(body, heads_p, kpts_p)
     foot = torch.as_tensor(joint_idx(FOOT_JOINTS))
@@ -241,8 +241,8 @@ def _fit(
         if cfg.refine_shape:
             out["shape"] = 1e-4 * (torch.sigmoid(shape_u) - 0.5).square().sum()
         out["limits"] = cfg.w_limits * joint_limit_penalty(full, frames, lo, hi)
-        if prior is not None and cfg.w_prior > 0:
-            out["prior"] = cfg.w_prior * prior(pose.reshape(n, -1))
+        if prior is not None:
+            out["prior"] = cfg.w_prior * prior.pose_nll(full)
         if cfg.w_ground > 0:
             sole_z = soles(G, x, row_person)[..., 2]
             below = torch.relu(-kp[:, foot, 2]).square().sum() + torch.relu(-sole_z).square().sum()

@@ -296,6 +296,35 @@ def worker(
     worker_main(home=home or _home(), executor=executor, ray_address=ray_address)
 
 
+priors_app = typer.Typer(help="Pose priors shipped with cornerman.", no_args_is_help=True)
+app.add_typer(priors_app, name="priors")
+
+
+@priors_app.command("build")
+def priors_build(
+    out: Annotated[Path | None, typer.Option(help="Output npz (default: the shipped builtin prior).")] = None,
+    seed: Annotated[int, typer.Option(help="Random seed of the GMM fit.")] = 0,
+    components: Annotated[int, typer.Option(help="Mixture components.")] = 4,
+    poses_out: Annotated[Path | None, typer.Option(help="Also save the retargeted poses (npz).")] = None,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """Rebuild anny's GMM pose prior from the DeepMimic clips in pybullet (the `priors`
+    extra; a few minutes): retarget every clip to anny, fit the mixture."""
+    _setup_logging(verbose)
+    from pipeline.backends.anny_prior_build import build_pose_prior
+    from pipeline.backends.anny_priors import BUILTIN_PRIOR
+
+    target = out or BUILTIN_PRIOR
+    try:
+        with console.status(f"retargeting DeepMimic clips and fitting the prior -> {target}"):
+            summary = build_pose_prior(target, seed=seed, n_components=components, poses_out=poses_out)
+    except (ImportError, ValueError) as e:
+        _fail(str(e))
+        return
+    for k, v in summary.items():
+        console.print(f"{k}: {v}", soft_wrap=True)
+
+
 def _mount_subapps() -> None:
     try:
         from pipeline.cli.models import app as models_app

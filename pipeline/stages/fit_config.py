@@ -65,8 +65,9 @@ class FitConfig:
     """Squared norm of those landmark offsets (m^2)."""
 
     w_prior: float = 1e-4
-    """w5: statistical pose prior (negative log-likelihood of a user-provided GMM over the
-    rig's pose; unused when ``pose_prior_path`` is empty)."""
+    """w5: statistical pose prior: sum over frames of the GMM's negative log-likelihood per
+    frame (nats, shifted so the most likely mode costs ~0; a pose s standard deviations off
+    along one axis costs ~s^2/2; anny). Unused when ``pose_prior_path`` is empty."""
 
     w_limits: float = 1.0
     """Soft anatomical joint limits: squared excess rotation beyond per-bone ranges (rad^2)."""
@@ -84,9 +85,12 @@ class FitConfig:
     use_2d: bool = True
     """Include the reprojection term (the 3D term alone is much cheaper but less accurate)."""
 
-    pose_prior_path: str = ""
-    """Optional GMM pose prior (npz with ``means`` (K, D), ``precisions`` (K, D, D) and
-    ``weights`` (K,) over the flattened non-root pose of ``rig``). Empty: joint limits only."""
+    pose_prior_path: str = "builtin"
+    """GMM pose prior: ``"builtin"`` = the shipped prior fitted to the DeepMimic clips
+    (``pipeline/backends/data/anny_pose_gmm.npz``, zlib-licensed source motion; rebuild with
+    ``anny_prior_build.build_pose_prior``), ``""`` = none (joint limits only), otherwise a
+    user npz with ``means`` (K, D), ``precisions`` (K, D, D), ``weights`` (K,) and optionally
+    ``bone_names`` (D/3 bones of ``rig``; default: every non-root bone) and ``rig``."""
 
     shape_iters: int = 60
     """L-BFGS iterations of the shape initialisation from bone lengths."""
