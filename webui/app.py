@@ -163,10 +163,14 @@ class ViewerApp:
             if self.persons.body_cache is not None:
                 self.persons.body_cache.stop()
             self.persons.body_cache = None
-            if self.data.bodyfit is not None and self.data.bodyfit.body_model == "anny":
-                cache = BodyMeshCache(self.data.bodyfit, on_chunk=self.request_render)
+            bf = self.data.bodyfit
+            smpl_path = str(self.data.config.stage_config.get("fit", {}).get("body_model_path", ""))
+            if bf is not None and (bf.body_model == "anny" or smpl_path):
+                cache = BodyMeshCache(bf, on_chunk=self.request_render, body_model_path=smpl_path)
                 cache.start()
                 self.persons.body_cache = cache
+            elif bf is not None:
+                log.info("%s fit: body meshes need the model files (fit.body_model_path); skeletons only", bf.body_model)
         if not phys_same:
             self.persons.physics_geoms = load_physics_geoms(self.data.physics_xml, self.data.physics)
 

@@ -94,14 +94,46 @@ def run_cmd(
     from_stage: Annotated[str | None, typer.Option("--from-stage", help="Re-run from this stage on.")] = None,
     to_stage: Annotated[str | None, typer.Option("--to-stage", help="Stop after this stage.")] = None,
     force: Annotated[bool, typer.Option(help="Re-run every stage even when fresh.")] = False,
+    body_model: Annotated[
+        str | None, typer.Option("--body-model", help="fit: anny, smpl or smplx (saved in session.json).")
+    ] = None,
+    body_model_path: Annotated[
+        Path | None,
+        typer.Option("--body-model-path", help="fit: folder with smpl/SMPL_*.pkl or smplx/SMPLX_*.npz (yours)."),
+    ] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
 ) -> None:
     """Run a session's stages, skipping the fresh ones."""
     _setup_logging(verbose)
     try:
+        if body_model is not None or body_model_path is not None:
+            _set_fit_body_model(session, body_model, body_model_path)
         _run_with_progress(session, from_stage, to_stage, force)
     except ValueError as e:
         _fail(str(e))
+
+
+def _set_fit_body_model(session: Path, body_model: str | None, body_model_path: Path | None) -> None:
+    """Store ``--body-model`` / ``--body-model-path`` in ``session.json``'s ``stage_config.fit``
+    (so the fit stage goes stale and re-runs, and the viewer finds the files for the meshes)."""
+    import dataclasses
+
+    from pipeline.schema.session import SessionConfig
+    from pipeline.stages.fit_config import FitConfig
+
+    cfg = SessionConfig.load(session)
+    fit = dict(cfg.stage_config.get("fit", {}))
+    if body_model is not None:
+        fit["body_model"] = body_model
+    if body_model_path is not None:
+        fit["body_model_path"] = str(body_model_path.expanduser().resolve())
+    try:
+        FitConfig(**fit)
+    except TypeError as e:
+        raise ValueError(f"{session / 'session.json'}: stage_config.fit: {e}") from e
+    if fit.get("body_model", "anny") not in ("anny", "smpl", "smplx"):
+        raise ValueError(f"--body-model must be anny, smpl or smplx, got {fit['body_model']!r}")
+    dataclasses.replace(cfg, stage_config={**cfg.stage_config, "fit": fit}).save(session)
 
 
 @app.command()

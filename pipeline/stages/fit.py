@@ -1,14 +1,18 @@
 """Stage ``fit``: a parametric body model per athlete from 2D and 3D keypoints (paper 3.3).
 
 Pure: ``run(keypoints3d, tracks, association, rig, cfg) -> FitResult``. The heavy work
-(torch, anny) happens in ``pipeline.backends.anny_fit``, imported when ``run`` is called.
+(torch) happens in ``pipeline.backends.anny_fit`` (anny) or ``pipeline.backends.smpl_fit``
+(SMPL/SMPL-X, the user's model files), imported when ``run`` is called.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -129,25 +133,30 @@ def run(
     and root translation per frame). Raises ``ValueError`` for inconsistent inputs and, for
     SMPL/SMPL-X, when the ``smplx`` package or the model files are missing."""
     t_start = time.perf_counter()
-    if cfg.body_model != "anny":
-        from pipeline.backends.smpl_body import check_smpl_available
+    if cfg.body_model == "anny":
+        from pipeline.backends.anny_fit import fit_anny
+        from pipeline.backends.anny_model import anny_body
 
-        check_smpl_available(cfg.body_model, cfg.body_model_path)
-        raise ValueError(
-            f"fit: body_model={cfg.body_model!r} model files were found, but fitting SMPL/SMPL-X is not "
-            "implemented in this version; use body_model='anny'"
-        )
+        body = anny_body(cfg.rig)
+        bone_names, rig_name, shape0 = body.bone_names, cfg.rig, np.full(6, 0.5)
+        fit_backend: Callable[..., Any] = functools.partial(fit_anny, cfg=cfg, body=body)
+    else:  # SMPL / SMPL-X: ValueError naming the path when files or smplx are missing
+        from pipeline.backends.smpl_body import N_BETAS, smpl_body
+        from pipeline.backends.smpl_fit import fit_smpl
+
+        sbody = smpl_body(cfg.body_model, cfg.body_model_path, cfg.smpl_gender)
+        bone_names, rig_name, shape0 = sbody.joint_names, sbody.rig, np.zeros(N_BETAS)
+        fit_backend = functools.partial(fit_smpl, cfg=cfg, body=sbody)
+
     inputs = gather_inputs(keypoints3d, tracks, association, rig, cfg)
     present = np.stack([(i.w3d > 0).sum(axis=1) >= cfg.min_valid_joints for i in inputs], axis=1)  # (F, P)
     fit_persons = [p for p in range(len(inputs)) if present[:, p].sum() >= 2]
     nf, npers, nj = keypoints3d.n_frames, keypoints3d.n_persons, len(COCO17_FEET)
 
-    from pipeline.backends.anny_fit import PersonObservations, fit_anny
-    from pipeline.backends.anny_model import anny_body
+    from pipeline.backends.fit_common import PersonObservations
 
-    body = anny_body(cfg.rig)
-    nb = body.n_bones
-    shape = np.full((npers, 6), 0.5)
+    nb = len(bone_names)
+    shape = np.tile(shape0, (npers, 1))
     pose = np.zeros((nf, npers, nb, 3))
     root = np.zeros((nf, npers, 3))
     kp = np.zeros((nf, npers, nj, 3))
@@ -158,7 +167,7 @@ def run(
             PersonObservations(inputs[p].kp3d_m, inputs[p].w3d, inputs[p].uv_px, inputs[p].w2d)
             for p in fit_persons
         ]
-        res = fit_anny(obs, rig.P, cfg, body)
+        res = fit_backend(obs, rig.P)
         for k, p in enumerate(fit_persons):
             shape[p], pose[:, p], root[:, p], kp[:, p], loss[p] = (
                 res.shape[k],
@@ -176,9 +185,9 @@ def run(
     for p in fit_persons:
         reproj[:, p] = _reprojection_px(kp[:, p], inputs[p], rig.P)
     bodyfit = BodyFit(
-        body_model="anny",
-        rig=cfg.rig,
-        bone_names=body.bone_names,
+        body_model=cfg.body_model,
+        rig=rig_name,
+        bone_names=bone_names,
         person_ids=keypoints3d.person_ids.copy(),
         frame_indices=keypoints3d.frame_indices.copy(),
         fps=keypoints3d.fps,

@@ -116,6 +116,15 @@ class FitConfig:
     tensors are small (frames x 36 bones), so extra threads gain little, and on a shared
     2-core machine an oversubscribed OpenMP pool made the fit ~10x slower."""
 
+    vposer_path: str = ""
+    """SMPL/SMPL-X only: the user's VPoser v2 weights (``human_body_prior`` ``.ckpt`` or a
+    plain state dict; not shipped, SMPL licence). Adds the encoder-based prior
+    ``w_prior * (0.5 |mu(pose)|^2 + |decode(mu) - pose|^2)`` on the 21 body joints (see
+    ``pipeline.backends.vposer``). Empty: no VPoser."""
+
+    smpl_gender: Literal["neutral", "male", "female"] = "neutral"
+    """SMPL/SMPL-X only: which model file of ``body_model_path`` to fit (``SMPL_<GENDER>.pkl``)."""
+
     def __post_init__(self) -> None:
         for name in (
             "w_2d",

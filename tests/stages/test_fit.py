@@ -187,19 +187,6 @@ def test_smpl_path_errors_clearly_without_files(model: str, tmp_path: Path, moti
         run(kp3d, tracks, assoc, rig, FitConfig(body_model=model, body_model_path=str(tmp_path / "nope")))
 
 
-def test_smpl_path_names_the_missing_package(tmp_path: Path, motion: AnnyMotion) -> None:
-    import importlib.util
-
-    if importlib.util.find_spec("smplx") is not None:
-        pytest.skip("smplx is installed here")
-    (tmp_path / "smpl").mkdir()
-    (tmp_path / "smpl" / "SMPL_NEUTRAL.pkl").write_bytes(b"placeholder")
-    rig = _rig(2)
-    kp3d, tracks, assoc = _inputs(rig, [motion])
-    with pytest.raises(ValueError, match="pip install smplx"):
-        run(kp3d, tracks, assoc, rig, FitConfig(body_model="smpl", body_model_path=str(tmp_path)))
-
-
 def test_config_validation() -> None:
     with pytest.raises(ValueError, match="w_2d"):
         FitConfig(w_2d=-1.0)

@@ -23,9 +23,13 @@ CHUNK_FRAMES = 64
 class BodyMeshCache:
     """Decimated posed vertices of every fitted person for every frame row of ``bodyfit``."""
 
-    def __init__(self, bodyfit: BodyFit, on_chunk: Callable[[], None] | None = None) -> None:
-        """``on_chunk`` is called (from the worker thread) whenever more frames are ready."""
+    def __init__(
+        self, bodyfit: BodyFit, on_chunk: Callable[[], None] | None = None, body_model_path: str = ""
+    ) -> None:
+        """``on_chunk`` is called (from the worker thread) whenever more frames are ready;
+        ``body_model_path``: the user's SMPL/SMPL-X model folder (SMPL fits only)."""
         self.bodyfit = bodyfit
+        self.body_model_path = body_model_path
         self.on_chunk = on_chunk
         n, p = bodyfit.frame_indices.shape[0], bodyfit.person_ids.shape[0]
         self._verts: list[np.ndarray | None] = [None] * p
@@ -52,7 +56,15 @@ class BodyMeshCache:
 
     def _run(self) -> None:
         try:
-            from pipeline.backends.anny_body import posed_mesh
+            if self.bodyfit.body_model == "anny":
+                from pipeline.backends.anny_body import posed_mesh
+            else:
+                from pipeline.backends.smpl_body import posed_mesh as smpl_mesh
+
+                def posed_mesh(
+                    bodyfit: BodyFit, person_index: int, frames: np.ndarray, decimate: bool = True
+                ) -> tuple[np.ndarray, np.ndarray]:  # SMPL: the full mesh (6890 / 10475 vertices)
+                    return smpl_mesh(bodyfit, person_index, frames, self.body_model_path)
         except ImportError as e:
             self.error = f"body model backend unavailable: {e}"
             log.warning("%s; showing skeletons only", self.error)

@@ -1,0 +1,166 @@
+"""Body-model-independent pieces of the kinematic fit (anny and SMPL/SMPL-X share them).
+
+The observations of one person, the L-BFGS driver, limb lengths for the shape
+initialisation, the root initialisation by Kabsch on the torso, the swing rotation of the
+limb initialisation, and the robust reprojection and keypoint-acceleration terms of the loss.
+Everything works on ``COCO17_FEET`` keypoints; nothing here knows the body model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import roma
+import torch
+
+from pipeline.schema.joints import BODY_LIMBS, COCO17_FEET
+from pipeline.stages.fit_config import FitConfig
+
+# Limbs whose length is (nearly) pose independent, used for the shape initialisation.
+SHAPE_LIMBS: tuple[tuple[str, str], ...] = BODY_LIMBS + (
+    ("left_ankle", "left_heel"),
+    ("right_ankle", "right_heel"),
+    ("left_heel", "left_big_toe"),
+    ("right_heel", "right_big_toe"),
+)
+_EVALS_PER_ITER = 1.25
+TORSO: tuple[str, ...] = ("left_shoulder", "right_shoulder", "left_hip", "right_hip")
+
+
+@dataclass(frozen=True)
+class PersonObservations:
+    """One person's inputs, in ``COCO17_FEET`` order.
+
+    Fields:
+        kp3d_m: (frames, joints, 3) triangulated joints (anything where ``w3d == 0``).
+        w3d: (frames, joints) confidence weights, 0 where invalid.
+        uv_px: (views, frames, joints, 2) *undistorted* 2D keypoints.
+        w2d: (views, frames, joints) confidence weights, 0 where invalid or below threshold.
+    """
+
+    kp3d_m: np.ndarray
+    w3d: np.ndarray
+    uv_px: np.ndarray
+    w2d: np.ndarray
+
+
+def joint_idx(names: tuple[str, ...]) -> list[int]:
+    return [COCO17_FEET.index(n) for n in names]
+
+
+def run_lbfgs(
+    params: list[torch.Tensor], closure: Callable[[], torch.Tensor], iters: int, cfg: FitConfig
+) -> None:
+    """Minimise ``closure()`` over ``params`` in place: L-BFGS with ``cfg``'s history and
+    learning rate, strong Wolfe line search, at most ``iters`` iterations."""
+    if iters <= 0:
+        return
+    opt = torch.optim.LBFGS(
+        params,
+        lr=cfg.lbfgs_lr,
+        max_iter=iters,
+        max_eval=int(iters * _EVALS_PER_ITER) + 5,
+        history_size=cfg.lbfgs_history,
+        line_search_fn="strong_wolfe",
+        tolerance_grad=1e-10,
+        tolerance_change=1e-14,
+    )
+
+    def _closure() -> torch.Tensor:
+        opt.zero_grad()
+        loss = closure()
+        loss.backward()
+        return loss
+
+    opt.step(_closure)
+
+
+def observed_lengths(obs: PersonObservations) -> tuple[np.ndarray, np.ndarray]:
+    """Median length (m) and a weight per ``SHAPE_LIMBS`` limb (0 when never observed)."""
+    lengths, weights = [], []
+    for a, b in SHAPE_LIMBS:
+        ia, ib = COCO17_FEET.index(a), COCO17_FEET.index(b)
+        ok = (obs.w3d[:, ia] > 0) & (obs.w3d[:, ib] > 0)
+        if ok.sum() < 3:
+            lengths.append(0.0)
+            weights.append(0.0)
+            continue
+        d = np.linalg.norm(obs.kp3d_m[ok, ia] - obs.kp3d_m[ok, ib], axis=-1)
+        lengths.append(float(np.median(d)))
+        weights.append(float(np.sqrt(obs.w3d[ok, ia] * obs.w3d[ok, ib]).mean()))
+    return np.array(lengths), np.array(weights)
+
+
+def kabsch(X: np.ndarray, Y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R, t minimising sum w |R X + t - Y|^2 (X, Y: (n, 3))."""
+    wn = w / w.sum()
+    mx, my = wn @ X, wn @ Y
+    H = ((X - mx) * wn[:, None]).T @ (Y - my)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(Vt.T @ U.T))
+    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    return R, my - R @ mx
+
+
+def init_roots(rest_kp: np.ndarray, obs: PersonObservations) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-frame root rotation (frames, 3, 3) and position (frames, 3) from the torso; and the
+    frames where the torso (3+ of shoulders/hips) was seen. ``rest_kp``: zero-pose keypoints
+    with the root head at the origin."""
+    nf = obs.kp3d_m.shape[0]
+    t_idx = joint_idx(TORSO) + joint_idx(("nose", "left_ear", "right_ear"))
+    R = np.tile(np.eye(3), (nf, 1, 1))
+    t = np.zeros((nf, 3))
+    ok = np.zeros(nf, dtype=bool)
+    for f in range(nf):
+        w = obs.w3d[f, t_idx].copy()
+        w[4:] *= 0.3
+        if (w[:4] > 0).sum() >= 3:
+            R[f], t[f] = kabsch(rest_kp[t_idx], obs.kp3d_m[f, t_idx], w)
+            ok[f] = True
+    if not ok.any():
+        return R, t, ok
+    good = np.flatnonzero(ok)
+    for f in np.flatnonzero(~ok).tolist():  # nearest seen frame
+        g = int(good[np.argmin(np.abs(good - f))])
+        R[f], t[f] = R[g], t[g]
+    return R, t, ok
+
+
+def min_rotation(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """(n, 3, 3) smallest rotations taking directions ``a`` to ``b`` (n, 3)."""
+    a = a / a.norm(dim=-1, keepdim=True).clamp(min=1e-9)
+    b = b / b.norm(dim=-1, keepdim=True).clamp(min=1e-9)
+    axis = torch.linalg.cross(a, b)
+    s = axis.norm(dim=-1, keepdim=True)
+    c = (a * b).sum(-1, keepdim=True)
+    angle = torch.atan2(s, c)
+    return roma.rotvec_to_rotmat(axis / s.clamp(min=1e-9) * angle)
+
+
+def reprojection_term(
+    kp: torch.Tensor, P_px: torch.Tensor, uv_px: torch.Tensor, w2d: torch.Tensor, cfg: FitConfig
+) -> torch.Tensor:
+    """Unweighted L2D of eq. 3: confidence-weighted robust reprojection error, summed.
+
+    kp: (n, joints, 3) world keypoints; P_px: (views, 3, 4) to undistorted pixels;
+    uv_px: (views, n, joints, 2); w2d: (views, n, joints), 0 where unusable. The robust
+    function is Geman-McClure with scale ``cfg.gm_sigma_px`` (or plain squares, ``robust_2d``).
+    """
+    h = torch.einsum("vij,nkj->vnki", P_px[:, :, :3], kp) + P_px[:, None, None, :, 3]
+    proj = h[..., :2] / h[..., 2:].clamp(min=1e-3)
+    r2 = (proj - uv_px).square().sum(-1)
+    s2 = cfg.gm_sigma_px**2
+    rho = s2 * r2 / (s2 + r2) if cfg.robust_2d == "gm" else r2
+    return (w2d * rho).sum()
+
+
+def accel_term(kp: torch.Tensor, scale_m: float) -> torch.Tensor:
+    """Sum of (pseudo-Huber, scale ``scale_m``; 0: plain) squared second differences of
+    keypoints ``kp`` (persons, frames, joints, 3) along frames (m^2 per frame^2)."""
+    a2 = (kp[:, 2:] - 2 * kp[:, 1:-1] + kp[:, :-2]).square().sum(-1)
+    if scale_m > 0:  # quadratic for jitter, linear for genuine fast motion (punches)
+        d2 = scale_m**2
+        a2 = 2 * d2 * (torch.sqrt(1 + a2 / d2) - 1)
+    return a2.sum()
