@@ -38,6 +38,7 @@ from pipeline.backends.anny_fit_terms import MeshMoments, lever_arms, rest_tails
 from pipeline.backends.anny_fk import SparseKeypoints, keypoints_from_bones
 from pipeline.backends.anny_model import AnnyBody, anny_body
 from pipeline.backends.anny_priors import joint_limit_penalty, joint_limit_tables, load_pose_prior
+from pipeline.backends.fit_common import accel_term, reprojection_term
 from pipeline.schema.joints import COCO17_FEET, FOOT_JOINTS
 from pipeline.stages.fit_config import FitConfig
 
@@ -214,12 +215,7 @@ def _fit(
         out: dict[str, torch.Tensor] = {}
         out["3d"] = cfg.w_3d * (w3d * (kp - kp3d).square().sum(-1)).sum()
         if use_2d and cfg.w_2d > 0:
-            h = torch.einsum("vij,nkj->vnki", P_t[:, :, :3], kp) + P_t[:, None, None, :, 3]
-            proj = h[..., :2] / h[..., 2:].clamp(min=1e-3)
-            r2 = (proj - uv).square().sum(-1)
-            s2 = cfg.gm_sigma_px**2
-            rho = s2 * r2 / (s2 + r2) if cfg.robust_2d == "gm" else r2
-            out["2d"] = cfg.w_2d * (w2d * rho).sum()
+            out["2d"] = cfg.w_2d * reprojection_term(kp, P_t, uv, w2d, cfg)
         out["reg"] = cfg.w_reg * pose.square().sum()
         if moments is not None and nf > 1:
             pz = pose.reshape(npers, nf, nb - 1, 3)
@@ -229,13 +225,8 @@ def _fit(
             A = torch.cat([G, t[..., None]], dim=-1).reshape(npers, nf, nb, 3, 4)
             sm = sm + moments(A[:, 1:] - A[:, :-1])
             out["smooth"] = cfg.w_smooth * sm
-        if cfg.w_accel > 0 and nf > 2:
-            kz = kp.reshape(npers, nf, nj, 3)
-            a2 = (kz[:, 2:] - 2 * kz[:, 1:-1] + kz[:, :-2]).square().sum(-1)
-            if cfg.accel_scale_m > 0:  # pseudo-Huber: quadratic for jitter, linear for punches
-                d2 = cfg.accel_scale_m**2
-                a2 = 2 * d2 * (torch.sqrt(1 + a2 / d2) - 1)
-            out["accel"] = cfg.w_accel * a2.sum()
+        if cfg.w_accel > 0 and nf > 2:  # pseudo-Huber: quadratic for jitter, linear for punches
+            out["accel"] = cfg.w_accel * accel_term(kp.reshape(npers, nf, nj, 3), cfg.accel_scale_m)
         if cfg.calibrate_landmarks:
             out["landmarks"] = cfg.w_landmarks * offsets.square().sum()
         if cfg.refine_shape:

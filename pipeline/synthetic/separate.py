@@ -27,7 +27,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
 from pipeline.evaluate.physics_metrics import CapsuleProxy, segment_closest_params, segment_distance
-from pipeline.schema.joints import COCO17_FEET
+from pipeline.schema.joints import COCO17_FEET, PCP_LIMBS
 
 _RIGID_GROUPS: tuple[tuple[str, ...], ...] = (
     ("left_hip", "right_hip", "left_shoulder", "right_shoulder"),
@@ -35,16 +35,8 @@ _RIGID_GROUPS: tuple[tuple[str, ...], ...] = (
     ("left_ankle", "left_heel", "left_big_toe", "left_small_toe"),
     ("right_ankle", "right_heel", "right_big_toe", "right_small_toe"),
 )
-_LIMBS: tuple[tuple[str, str], ...] = (
-    ("left_shoulder", "left_elbow"),
-    ("left_elbow", "left_wrist"),
-    ("right_shoulder", "right_elbow"),
-    ("right_elbow", "right_wrist"),
-    ("left_hip", "left_knee"),
-    ("left_knee", "left_ankle"),
-    ("right_hip", "right_knee"),
-    ("right_knee", "right_ankle"),
-)
+_LIMBS: tuple[tuple[str, str], ...] = tuple(b for b in PCP_LIMBS if b[0].split("_")[0] == b[1].split("_")[0])
+"""Upper/lower arms and legs (the PCP limbs without the shoulder and hip lines)."""
 
 
 def _end_joints(name: str, names: tuple[str, ...]) -> list[int]:

@@ -26,6 +26,7 @@ from pipeline.backends.mujoco_humanoid import DENSITY_KG_M3, build_scene_mjcf, l
 from pipeline.schema.joints import COCO17_FEET  # noqa: E402
 from pipeline.schema.keypoints3d import Keypoints3D  # noqa: E402
 from pipeline.schema.results import BodyFit  # noqa: E402
+from tests.backends.humanoid_checks import assert_random_servo_targets_stay_stable  # noqa: E402
 
 N_FRAMES = 30
 
@@ -220,21 +221,7 @@ def test_random_servo_targets_stay_stable(bout: tuple[BodyFit, Keypoints3D], geo
     skels = [skeleton_from_bodyfit(bf, p, kp, geometry) for p in (0, 1)]  # type: ignore[arg-type]
     model = load_model(build_scene_mjcf(skels, [4, 5], 50.0))
     lay = scene_layout(model, [4, 5])
-    data = mujoco.MjData(model)
-    rng = np.random.default_rng(1)
-    lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
-    for _ in range(3):
-        mujoco.mj_resetData(model, data)
-        p1 = lay.persons[1]
-        data.qpos[p1.qpos_adr] = rng.uniform(0.3, 0.6)
-        data.qpos[p1.qpos_adr + 1] = 0.0
-        data.qpos[p1.qpos_adr + 3 : p1.qpos_adr + 7] = [0.0, 0.0, 0.0, 1.0]
-        for _ in range(60):
-            data.ctrl[:] = rng.uniform(lo, hi)
-            mujoco.mj_step(model, data)
-        assert np.all(np.isfinite(data.qpos))
-        assert np.abs(data.qvel).max() < 100.0
-        assert data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number == 0
+    assert_random_servo_targets_stay_stable(model, lay, rounds=3)
 
 
 def test_unobserved_keypoint_falls_back_to_the_rest_regressor(bout: tuple[BodyFit, Keypoints3D]) -> None:

@@ -23,6 +23,7 @@ from pipeline.backends.mujoco_humanoid import (  # noqa: E402
 )
 from pipeline.schema.joints import COCO17_FEET  # noqa: E402
 from pipeline.schema.keypoints3d import Keypoints3D  # noqa: E402
+from tests.backends.humanoid_checks import assert_random_servo_targets_stay_stable  # noqa: E402
 
 
 def _rest_keypoints(scale: float, n_frames: int = 5) -> Keypoints3D:
@@ -109,21 +110,7 @@ def test_random_servo_targets_stay_stable() -> None:
     skel = build_skeleton(dict(_DEFAULT_LENGTHS))
     model = load_model(build_scene_mjcf([skel, skel], [0, 1], 50.0))
     lay = scene_layout(model, [0, 1])
-    data = mujoco.MjData(model)
-    rng = np.random.default_rng(1)
-    lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
-    for _ in range(4):
-        mujoco.mj_resetData(model, data)
-        p1 = lay.persons[1]
-        data.qpos[p1.qpos_adr] = rng.uniform(0.3, 0.6)
-        data.qpos[p1.qpos_adr + 1] = 0.0
-        data.qpos[p1.qpos_adr + 3 : p1.qpos_adr + 7] = [0.0, 0.0, 0.0, 1.0]
-        for _ in range(60):
-            data.ctrl[:] = rng.uniform(lo, hi)
-            mujoco.mj_step(model, data)
-        assert np.all(np.isfinite(data.qpos))
-        assert np.abs(data.qvel).max() < 100.0
-        assert data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number == 0
+    assert_random_servo_targets_stay_stable(model, lay, rounds=4)
 
 
 def test_sole_height_is_median_lowest_foot_point() -> None:
