@@ -45,18 +45,16 @@ class PhysicsConfig:
     mode: Literal["multi", "single"] = "multi"
     """``multi``: all persons in one simulation (inter-person contacts); ``single``:
     each person optimised alone (the paper's ablation)."""
-    skeleton: Literal["bodyfit", "keypoints"] = "keypoints"
+    skeleton: Literal["bodyfit", "keypoints"] = "bodyfit"
     """``bodyfit``: humanoids built from the anny ``BodyFit`` (19 bodies, 44 hinges; when
     given, anny, and covering every person; otherwise falls back to ``keypoints`` with a
     log message); ``keypoints``: 13 bodies, 26 hinges sized from the fitted joints' bone
-    lengths. Default ``keypoints``: on the synthetic bench (150 frames, multi) it tracks
-    far better today (MPJPE 48 mm vs 55-60 mm, ground penetration 0.3 vs 27 mm) at a
-    third of the cost; the bodyfit humanoid with mesh geoms removes the most
-    inter-person penetration (mean 2.8 mm vs 7.6 mm)."""
-    geometry: Literal["capsule", "mesh"] = "capsule"
-    """Collision geometry: ``capsule`` (capsules + box soles; fastest) or ``mesh``
-    (convex hulls of the body mesh segmented by skinning weights; ``bodyfit`` only —
-    the keypoint skeleton always uses capsules)."""
+    lengths (capsules only; ~3x faster)."""
+    geometry: Literal["capsule", "mesh"] = "mesh"
+    """Collision geometry of the ``bodyfit`` humanoid: ``mesh`` (convex hulls of the body
+    mesh segmented by skinning weights) or ``capsule`` (one capsule per part fitted to the
+    same vertices). On the synthetic bench (150 frames, multi) hulls give the least
+    penetration (mean 9.1 mm vs 12.2 capsules, 13.9 keypoint capsules) at the same MPJPE."""
     substeps: int = 2
     """MuJoCo steps per video frame (stability of strong servos; see ``HumanoidConfig``)."""
     max_frames: int = 0
