@@ -392,6 +392,14 @@ def skeleton_from_bodyfit(
                     geoms.append(_capsule_of_volume(half, 0.5 * hv, np.array([0.0, 0.0, 1.0])))
             else:
                 geoms.append(_capsule_of_volume(hull_v, hv))
+        if n.endswith("_foot") and len(pts) >= 4:
+            # The fit's landmark offsets may put the heel/toe keypoints below anny's sole
+            # (the detector's "toe" is not anny's); in the simulation the sole is what meets
+            # the floor, so foot points are lifted onto its plane.
+            zmin = float(pts[:, 2].min())
+            for k in (f"{n[: -len('_foot')]}_{p}" for p in ("heel", "big_toe", "small_toe")):
+                if k in sites:
+                    sites[k] = np.array([sites[k][0], sites[k][1], max(float(sites[k][2]), zmin)])
         bsites = tuple((k, _t(v)) for k, v in sites.items() if SITE_BODY[k] == n)
         rel = o - (origin[parent] if parent else o)
         bodies.append(BodyDef(n, parent, _t(rel), () if not parent else _joints(n, jh), tuple(geoms), bsites))

@@ -128,6 +128,9 @@ def test_posed_sites_reproduce_keypoints_with_landmark_offsets() -> None:
     bf = _bodyfit(shape, pose, root)
     G, x, kp = pose_fk(DEFAULT_RIG, shape[0], pose[:, 0], root[:, 0])
     offset = rng.normal(scale=0.02, size=(len(COCO17_FEET), 3))  # per-keypoint landmark offsets (body frame)
+    for name in ("heel", "big_toe", "small_toe"):  # foot points below the sole are lifted (next test)
+        for side in ("left", "right"):
+            offset[COCO17_FEET.index(f"{side}_{name}"), 2] = abs(offset[COCO17_FEET.index(f"{side}_{name}"), 2])
     for j, name in enumerate(COCO17_FEET):
         b = names.index(BODY_BONES[SITE_BODY[name]][1][-1])
         kp[:, j] += G[:, b] @ offset[j]
@@ -234,3 +237,21 @@ def test_unobserved_keypoint_falls_back_to_the_rest_regressor(bout: tuple[BodyFi
     assert set(got) == set(COCO17_FEET)
     np.testing.assert_allclose(got["nose"], rest["nose"], atol=1e-9)
     assert np.linalg.norm(got["left_wrist"] - rest["left_wrist"]) > 1e-4  # observed: from the keypoints
+
+
+def test_foot_points_are_lifted_onto_the_sole(bout: tuple[BodyFit, Keypoints3D]) -> None:
+    """Keypoints the fit places below anny's sole (its landmark offsets) become sites on the
+    sole's plane: a foot standing flat on the floor then has no point under it."""
+    bf, kp = bout
+    xyz = kp.xyz_m.copy()
+    for side in ("left", "right"):
+        for name in ("heel", "big_toe", "small_toe"):
+            xyz[:, :, COCO17_FEET.index(f"{side}_{name}"), 2] -= 0.03  # 3 cm under the mesh
+    sk = skeleton_from_bodyfit(bf, 0, kp.replace(xyz_m=xyz), "mesh")
+    for side in ("left", "right"):
+        foot = sk.body(f"{side}_foot")
+        zmin = min(v[2] for v in foot.geoms[0].vertices_m or ())
+        sites = dict(foot.sites)
+        for name in ("heel", "big_toe", "small_toe"):
+            assert sites[f"{side}_{name}"][2] >= zmin - 1e-9
+        assert min(sites[f"{side}_{n}"][2] for n in ("heel", "big_toe", "small_toe")) < zmin + 0.02
