@@ -11,7 +11,16 @@ import pytest
 from pipeline.geometry import project
 from pipeline.geometry.rotations import look_at_T_world_cam
 from pipeline.io.calibration import save_toml
-from pipeline.schema import COCO17, CameraRig, SessionConfig, Tracks2D, save_npz
+from pipeline.schema import (
+    COCO17,
+    COCO17_FEET,
+    Association,
+    CameraRig,
+    Keypoints3D,
+    SessionConfig,
+    Tracks2D,
+    save_npz,
+)
 
 
 def make_rig(n_views: int = 3, radius_m: float = 6.0, height_m: float = 2.5, fps: float = 50.0) -> CameraRig:
@@ -59,6 +68,56 @@ def make_tracks(rig: CameraRig, n_frames: int = 20, seed: int = 0) -> tuple[Trac
         track_id=track.astype(np.int64),
     )
     return tracks, X
+
+
+def fit_stage_inputs(
+    rig: CameraRig, xyz: np.ndarray, fps: float = 50.0, noise_3d_m: float = 0.0, noise_px: float = 0.0, seed: int = 0
+) -> tuple[Keypoints3D, Tracks2D, Association]:
+    """Inputs of the fit stage from known joints ``xyz`` (frames, persons, 23, 3) in
+    ``COCO17_FEET`` order: filtered 3D keypoints, every person seen by every view, identities
+    known. Optional Gaussian noise on the 3D points and on the 2D projections."""
+    rng = np.random.default_rng(seed)
+    nf, npers, nj = xyz.shape[:3]
+    kp3d = Keypoints3D(
+        joint_names=COCO17_FEET,
+        person_ids=np.arange(npers),
+        frame_indices=np.arange(nf),
+        fps=fps,
+        xyz_m=xyz + rng.normal(0, noise_3d_m, xyz.shape) if noise_3d_m else xyz.copy(),
+        valid=np.ones((nf, npers, nj), dtype=bool),
+        confidence=np.full((nf, npers, nj), 0.9),
+        n_views=np.full((nf, npers, nj), rig.n_views),
+        reproj_err_px=np.zeros((nf, npers, nj)),
+        source="filtered",
+    )
+    uv, _ = project(rig, xyz)  # (V, F, P, J, 2)
+    if noise_px:
+        uv = uv + rng.normal(0, noise_px, uv.shape)
+    nv = rig.n_views
+    view, frame, person = (
+        a.ravel() for a in np.meshgrid(np.arange(nv), np.arange(nf), np.arange(npers), indexing="ij")
+    )
+    kp = uv[view, frame, person]
+    tracks = Tracks2D(
+        joint_names=COCO17_FEET,
+        n_views=nv,
+        n_frames=nf,
+        view=view.astype(np.int64),
+        frame=frame.astype(np.int64),
+        bbox_xyxy_px=np.concatenate([kp.min(axis=1), kp.max(axis=1)], axis=1),
+        bbox_score=np.full(view.size, 0.9),
+        keypoints_px=kp,
+        keypoint_conf=np.full((view.size, nj), 0.95),
+        keypoint_valid=np.ones((view.size, nj), dtype=bool),
+        track_id=person.astype(np.int64),
+    )
+    assoc = Association(
+        person_ids=np.arange(npers),
+        person_names=("",) * npers,
+        person_of_det=person.astype(np.int64),
+        confidence=np.ones(view.size),
+    )
+    return kp3d, tracks, assoc
 
 
 def write_tiny_session(session_dir: Path, stages: tuple[str, ...] = ("detect2d", "track"), n_frames: int = 20) -> Path:

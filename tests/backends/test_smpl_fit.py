@@ -19,6 +19,7 @@ import pytest
 from pipeline.geometry import project
 from pipeline.schema import COCO17_FEET, Association, CameraRig, Keypoints3D, Tracks2D
 from pipeline.stages.fit import FitConfig, run
+from tests.conftest import fit_stage_inputs
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("smplx")
@@ -396,45 +397,7 @@ def test_stage_fits_smpl_and_writes_a_bodyfit(model_dir: Path, body: sb.SmplBody
 
 
 def _stage_inputs(rig: CameraRig, xyz: np.ndarray) -> tuple[Keypoints3D, Tracks2D, Association]:
-    nf, npers, nj = xyz.shape[:3]
-    kp3d = Keypoints3D(
-        joint_names=COCO17_FEET,
-        person_ids=np.arange(npers),
-        frame_indices=np.arange(nf),
-        fps=FPS,
-        xyz_m=xyz.copy(),
-        valid=np.ones((nf, npers, nj), dtype=bool),
-        confidence=np.full((nf, npers, nj), 0.9),
-        n_views=np.full((nf, npers, nj), rig.n_views),
-        reproj_err_px=np.zeros((nf, npers, nj)),
-        source="filtered",
-    )
-    uv, _ = project(rig, xyz)
-    nv = rig.n_views
-    view, frame, person = (
-        a.ravel() for a in np.meshgrid(np.arange(nv), np.arange(nf), np.arange(npers), indexing="ij")
-    )
-    kp = uv[view, frame, person]
-    tracks = Tracks2D(
-        joint_names=COCO17_FEET,
-        n_views=nv,
-        n_frames=nf,
-        view=view.astype(np.int64),
-        frame=frame.astype(np.int64),
-        bbox_xyxy_px=np.concatenate([kp.min(axis=1), kp.max(axis=1)], axis=1),
-        bbox_score=np.full(view.size, 0.9),
-        keypoints_px=kp,
-        keypoint_conf=np.full((view.size, nj), 0.95),
-        keypoint_valid=np.ones((view.size, nj), dtype=bool),
-        track_id=person.astype(np.int64),
-    )
-    assoc = Association(
-        person_ids=np.arange(npers),
-        person_names=("",) * npers,
-        person_of_det=person.astype(np.int64),
-        confidence=np.ones(view.size),
-    )
-    return kp3d, tracks, assoc
+    return fit_stage_inputs(rig, xyz, FPS)
 
 
 def test_missing_gender_file_and_package_are_named(model_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
