@@ -395,11 +395,12 @@ def skeleton_from_bodyfit(
         if n.endswith("_foot") and len(pts) >= 4:
             # The fit's landmark offsets may put the heel/toe keypoints below anny's sole
             # (the detector's "toe" is not anny's); in the simulation the sole is what meets
-            # the floor, so foot points are lifted onto its plane.
-            zmin = float(pts[:, 2].min())
+            # the floor, so foot points are lifted onto the sole right under them (the lowest
+            # foot vertices within 3 cm in x-y: the sole curves up at the toes and the heel,
+            # and a foot rolled onto its toes must not push the toe points into the floor).
             for k in (f"{n[: -len('_foot')]}_{p}" for p in ("heel", "big_toe", "small_toe")):
                 if k in sites:
-                    sites[k] = np.array([sites[k][0], sites[k][1], max(float(sites[k][2]), zmin)])
+                    sites[k] = np.array([sites[k][0], sites[k][1], max(float(sites[k][2]), _sole_under(pts, sites[k]))])
         bsites = tuple((k, _t(v)) for k, v in sites.items() if SITE_BODY[k] == n)
         rel = o - (origin[parent] if parent else o)
         bodies.append(BodyDef(n, parent, _t(rel), () if not parent else _joints(n, jh), tuple(geoms), bsites))
@@ -418,6 +419,14 @@ def skeleton_from_bodyfit(
         "sole_offset": 0.0,
     }
     return Skeleton(bodies=tuple(bodies), lengths_m=lengths, pelvis_height_m=float(pelvis0[2]))
+
+
+def _sole_under(foot_pts: np.ndarray, site: np.ndarray, radius_m: float = 0.03) -> float:
+    """Height of the foot's underside below ``site`` (body frame): the lowest vertex within
+    ``radius_m`` in x-y, or the nearest vertex's height when none is that close."""
+    d = np.linalg.norm(foot_pts[:, :2] - site[:2], axis=1)
+    near = d <= radius_m
+    return float(foot_pts[near, 2].min()) if near.any() else float(foot_pts[np.argmin(d), 2])
 
 
 def _sole_box(hull_v: np.ndarray, volume: float) -> GeomDef:
