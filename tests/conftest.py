@@ -23,11 +23,13 @@ from pipeline.schema import (
 )
 
 
-def make_rig(n_views: int = 3, radius_m: float = 6.0, height_m: float = 2.5, fps: float = 50.0) -> CameraRig:
-    """Cameras on a circle around the origin, looking at the ring centre."""
+def make_rig(
+    n_views: int = 3, radius_m: float = 6.0, height_m: float = 2.5, fps: float = 50.0, phase_rad: float = 0.3
+) -> CameraRig:
+    """Cameras on a circle around the origin (first at ``phase_rad``), looking at the ring centre."""
     Ts, Ks = [], []
     for i in range(n_views):
-        a = 2 * np.pi * i / n_views + 0.3
+        a = 2 * np.pi * i / n_views + phase_rad
         eye = np.array([radius_m * np.cos(a), radius_m * np.sin(a), height_m])
         Ts.append(look_at_T_world_cam(eye, np.array([0.0, 0.0, 1.0])))
         Ks.append(np.array([[1100.0, 0, 640], [0, 1100.0, 360], [0, 0, 1]]))

@@ -38,7 +38,7 @@ from pipeline.backends.anny_fit_terms import MeshMoments, lever_arms, rest_tails
 from pipeline.backends.anny_fk import SparseKeypoints, keypoints_from_bones
 from pipeline.backends.anny_model import AnnyBody, anny_body
 from pipeline.backends.anny_priors import joint_limit_penalty, joint_limit_tables, load_pose_prior
-from pipeline.backends.fit_common import accel_term, reprojection_term
+from pipeline.backends.fit_common import accel_term, ground_term, reprojection_term
 from pipeline.schema.joints import COCO17_FEET, FOOT_JOINTS
 from pipeline.stages.fit_config import FitConfig
 
@@ -236,8 +236,7 @@ def _fit(
             out["prior"] = cfg.w_prior * prior.pose_nll(full)
         if cfg.w_ground > 0:
             sole_z = soles(G, x, row_person)[..., 2]
-            below = torch.relu(-kp[:, foot, 2]).square().sum() + torch.relu(-sole_z).square().sum()
-            out["ground"] = cfg.w_ground * below
+            out["ground"] = cfg.w_ground * ground_term(kp, foot, sole_z)
         return sum(out.values()), out  # type: ignore[return-value]
 
     run_lbfgs(params, lambda: evaluate(False)[0], cfg.pose_iters_3d, cfg)

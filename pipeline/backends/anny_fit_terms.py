@@ -7,6 +7,7 @@ import numpy as np
 import torch
 
 from pipeline.backends.anny_model import AnnyBody
+from pipeline.backends.fit_common import lbs_moment_factors
 
 
 class MeshMoments:
@@ -20,16 +21,7 @@ class MeshMoments:
 
     def __init__(self, body: AnnyBody, coeffs: torch.Tensor) -> None:
         w = body.model.dense_vertex_bone_weights
-        factors = []
-        for c in coeffs:
-            v = body.rest_vertices(c[None])[0]
-            vt = torch.cat([v, torch.ones_like(v[:, :1])], dim=1)
-            X = (w[:, :, None] * vt[:, None, :]).reshape(v.shape[0], -1)
-            lam, U = torch.linalg.eigh(X.T @ X)
-            keep = lam > lam.max() * 1e-12
-            factors.append(U[:, keep] * lam[keep].sqrt())
-        rank = max(f.shape[1] for f in factors)
-        self.L = torch.stack([torch.nn.functional.pad(f, (0, rank - f.shape[1])) for f in factors])
+        self.L = lbs_moment_factors([body.rest_vertices(c[None])[0] for c in coeffs], w)
 
     def __call__(self, dA: torch.Tensor) -> torch.Tensor:
         """dA: (persons, steps, bones, 3, 4) transform differences -> scalar sum."""

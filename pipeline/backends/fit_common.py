@@ -164,3 +164,25 @@ def accel_term(kp: torch.Tensor, scale_m: float) -> torch.Tensor:
         d2 = scale_m**2
         a2 = 2 * d2 * (torch.sqrt(1 + a2 / d2) - 1)
     return a2.sum()
+
+
+def ground_term(kp: torch.Tensor, foot: torch.Tensor, sole_z: torch.Tensor) -> torch.Tensor:
+    """Unweighted ground term: squared depth below z = 0 of the foot keypoints ``kp[:, foot]``
+    and of the sole vertices' heights ``sole_z``."""
+    return torch.relu(-kp[:, foot, 2]).square().sum() + torch.relu(-sole_z).square().sum()
+
+
+def lbs_moment_factors(rest_vertices: list[torch.Tensor], weights: torch.Tensor) -> torch.Tensor:
+    """Factors ``L`` (persons, bones * 4, rank) with ``sum_v |dv'|^2 = |Z L|^2`` for linear
+    blend skinning with per-bone transform differences ``dA_b`` (rows of every ``dA_b``
+    stacked in ``Z``): ``S = sum_v (w_v (x) [v; 1])(w_v (x) [v; 1])^T = L L^T`` by
+    eigen-decomposition, one per person's rest vertices (V, 3); ``weights`` (V, bones)."""
+    factors = []
+    for v in rest_vertices:
+        vt = torch.cat([v, torch.ones_like(v[:, :1])], dim=1)
+        X = (weights[:, :, None] * vt[:, None, :]).reshape(v.shape[0], -1)
+        lam, U = torch.linalg.eigh(X.T @ X)
+        keep = lam > lam.max() * 1e-12
+        factors.append(U[:, keep] * lam[keep].sqrt())
+    rank = max(f.shape[1] for f in factors)
+    return torch.stack([torch.nn.functional.pad(f, (0, rank - f.shape[1])) for f in factors])

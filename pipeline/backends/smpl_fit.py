@@ -37,8 +37,10 @@ from pipeline.backends.fit_common import (
     SHAPE_LIMBS,
     PersonObservations,
     accel_term,
+    ground_term,
     init_roots,
     joint_idx,
+    lbs_moment_factors,
     min_rotation,
     observed_lengths,
     reprojection_term,
@@ -218,17 +220,10 @@ def _mesh_moments(body: SmplBody, betas: torch.Tensor) -> torch.Tensor:
     """Factor ``L`` (persons, joints * 4, rank) with ``sum_v |dv|^2 = |Z L|^2`` for LBS
     transform differences (as ``anny_fit_terms.MeshMoments``; pose blend shapes ignored)."""
     m = body.module
-    w = body.lbs_weights
-    factors = []
-    for b in betas:
-        v = m.v_template.detach().double() + torch.einsum("vdb,b->vd", m.shapedirs.detach().double(), b)
-        vt = torch.cat([v, torch.ones_like(v[:, :1])], dim=1)
-        X = (w[:, :, None] * vt[:, None, :]).reshape(v.shape[0], -1)
-        lam, U = torch.linalg.eigh(X.T @ X)
-        keep = lam > lam.max() * 1e-12
-        factors.append(U[:, keep] * lam[keep].sqrt())
-    rank = max(f.shape[1] for f in factors)
-    return torch.stack([torch.nn.functional.pad(f, (0, rank - f.shape[1])) for f in factors])
+    rest = [
+        m.v_template.detach().double() + torch.einsum("vdb,b->vd", m.shapedirs.detach().double(), b) for b in betas
+    ]
+    return lbs_moment_factors(rest, body.lbs_weights)
 
 
 def fit_smpl(
@@ -416,8 +411,7 @@ def _fit(
             out["vposer"] = cfg.w_prior * vposer(pose[:, :21])
         if cfg.w_ground > 0:
             sole_z = skin(soles, b_rows, J, G, x, R_local)[..., 2]
-            below = torch.relu(-kp[:, foot, 2]).square().sum() + torch.relu(-sole_z).square().sum()
-            out["ground"] = cfg.w_ground * below
+            out["ground"] = cfg.w_ground * ground_term(kp, foot, sole_z)
         return sum(out.values()), out  # type: ignore[return-value]
 
     run_lbfgs(params, lambda: evaluate(False)[0], cfg.pose_iters_3d, cfg)

@@ -13,7 +13,6 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.schema.association import Association
 from pipeline.schema.joints import FOOT_JOINTS
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.stages.fit import FitConfig
@@ -50,13 +49,7 @@ def run_bench(
     cfg = FitConfig(threads=threads, **fit_overrides)
     for n_cams in (cameras,) if isinstance(cameras, int) else tuple(cameras):
         bout = make_bout(SyntheticConfig(seed=seed, n_cameras=n_cams, n_frames=n_frames))
-        pod = bout.gt_person_of_det
-        assoc = Association(
-            person_ids=np.array([0, 1]),
-            person_names=("", ""),
-            person_of_det=pod.astype(np.int64),
-            confidence=np.ones(pod.shape[0]),
-        )
+        assoc = bout.gt_association()
         t0 = time.perf_counter()
         raw, tri = run_triangulate(bout.tracks, assoc, bout.rig, TriangulateConfig())
         t_tri = time.perf_counter() - t0

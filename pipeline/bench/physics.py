@@ -32,17 +32,10 @@ def _kinematic_input(bout: Any, source: str, seed: int) -> tuple[Keypoints3D, Bo
         rng = np.random.default_rng(seed)
         noise = gaussian_filter1d(rng.normal(scale=0.024, size=bout.gt.xyz_m.shape), 2.0, axis=0)
         return bout.gt.replace(xyz_m=bout.gt.xyz_m + noise, source="fit"), None
-    from pipeline.schema.association import Association
     from pipeline.stages.triangulate import TriangulateConfig
     from pipeline.stages.triangulate import run as run_triangulate
 
-    pod = bout.gt_person_of_det
-    assoc = Association(
-        person_ids=np.array([0, 1]),
-        person_names=("", ""),
-        person_of_det=pod.astype(np.int64),
-        confidence=np.ones(pod.shape[0]),
-    )
+    assoc = bout.gt_association()
     _, tri = run_triangulate(bout.tracks, assoc, bout.rig, TriangulateConfig())
     if source == "triangulation":
         return tri, None

@@ -19,7 +19,7 @@ import pytest
 from pipeline.geometry import project
 from pipeline.schema import COCO17_FEET, Association, CameraRig, Keypoints3D, Tracks2D
 from pipeline.stages.fit import FitConfig, run
-from tests.conftest import fit_stage_inputs
+from tests.conftest import fit_stage_inputs, make_rig
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("smplx")
@@ -205,22 +205,7 @@ def write_synthetic_smpl(root: Path, posedirs_scale: float = 0.0, seed: int = 0,
 
 
 def _rig(n_views: int = 4) -> CameraRig:
-    from pipeline.geometry.rotations import look_at_T_world_cam
-
-    Ts = []
-    for i in range(n_views):
-        a = 2 * np.pi * i / n_views + 0.4
-        Ts.append(
-            look_at_T_world_cam(np.array([6 * np.cos(a), 6 * np.sin(a), 2.5]), np.array([0.0, 0.0, 1.0]))
-        )
-    return CameraRig(
-        names=tuple(f"cam{i}" for i in range(n_views)),
-        K=np.tile(np.array([[1100.0, 0, 640], [0, 1100.0, 360], [0, 0, 1]]), (n_views, 1, 1)),
-        dist=np.zeros((n_views, 5)),
-        T_world_cam=np.stack(Ts),
-        image_size_wh=np.tile([1280, 720], (n_views, 1)),
-        fps=FPS,
-    )
+    return make_rig(n_views, fps=FPS, phase_rad=0.4)
 
 
 def _motion(body: sb.SmplBody, nf: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
