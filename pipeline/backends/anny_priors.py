@@ -121,6 +121,9 @@ class GMMPrior:
             raise ValueError(
                 f"GMM prior: means {means.shape}, precisions {precisions.shape}, weights {weights.shape} are inconsistent"
             )
+        for name, arr in (("means", means), ("precisions", precisions), ("weights", weights)):
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"GMM prior: {name} contain NaN or infinite values")
         if np.any(weights <= 0):
             raise ValueError("GMM prior: weights must be positive")
         if bone_names is not None and 3 * len(bone_names) != d:

@@ -133,6 +133,11 @@ def _set_fit_body_model(session: Path, body_model: str | None, body_model_path: 
         raise ValueError(f"{session / 'session.json'}: stage_config.fit: {e}") from e
     if fit.get("body_model", "anny") not in ("anny", "smpl", "smplx"):
         raise ValueError(f"--body-model must be anny, smpl or smplx, got {fit['body_model']!r}")
+    if fit.get("body_model", "anny") != "anny":
+        # Check the files before saving: a wrong path must not end up in session.json.
+        from pipeline.backends.smpl_body import check_smpl_available
+
+        check_smpl_available(fit["body_model"], fit.get("body_model_path", ""))
     dataclasses.replace(cfg, stage_config={**cfg.stage_config, "fit": fit}).save(session)
 
 

@@ -188,3 +188,14 @@ def test_build_without_pybullet_fails_clearly(monkeypatch: pytest.MonkeyPatch, t
     )
     with pytest.raises(ImportError, match=r"pip install 'cornerman\[priors\]'"):
         anny_prior_build.build_pose_prior(tmp_path / "prior.npz")
+
+
+def test_prior_file_with_nan_is_refused(tmp_path: Path) -> None:
+    """A corrupt prior (NaN means) names the file and the problem instead of NaN losses."""
+    from pipeline.backends.anny_priors import GMMPrior
+
+    path = tmp_path / "nan_prior.npz"
+    d = 6
+    np.savez(path, means=np.full((2, d), np.nan), precisions=np.tile(np.eye(d), (2, 1, 1)), weights=np.array([0.5, 0.5]))
+    with pytest.raises(ValueError, match=r"nan_prior\.npz.*NaN"):
+        GMMPrior.load(path)

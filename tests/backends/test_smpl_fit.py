@@ -512,6 +512,10 @@ def test_cli_body_model_flags(tmp_path: Path, model_dir: Path) -> None:
     assert fit == {"body_model": "smpl", "body_model_path": str(model_dir.resolve())}
     r = runner.invoke(app, ["run", str(s), "--body-model", "smpl-h"])
     assert r.exit_code == 2 and "smpl-h" in r.output
+    before = (s / "session.json").read_text()
+    r = runner.invoke(app, ["run", str(s), "--body-model", "smplx", "--body-model-path", str(tmp_path / "nope")])
+    assert r.exit_code == 2 and "nope" in r.output and "not a folder" in r.output
+    assert (s / "session.json").read_text() == before  # the bad path was not saved
 
 
 def test_smplx_model_keypoints_and_fit(tmp_path: Path) -> None:
