@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, TypeVar
 
 from sqlalchemy import bindparam, func, text
-from sqlmodel import Session, col, select
+from sqlmodel import Session, SQLModel, col, select
 from sqlmodel.sql.sqltypes import UTCDateTime
 
 from server.core.security import hash_token, new_token
@@ -93,13 +93,21 @@ def list_bouts(session: Session, *, status: str | None = None, limit: int = 1000
     return session.exec(q.order_by(col(Bout.id)).offset(offset).limit(limit)).all()
 
 
-def update_bout(session: Session, *, bout: Bout, changes: dict[str, Any]) -> Bout:
+RowT = TypeVar("RowT", bound=SQLModel)
+
+
+def _save_changes(session: Session, row: RowT, changes: dict[str, Any]) -> RowT:
+    """Set ``changes`` on ``row``, commit and return it refreshed."""
     for k, v in changes.items():
-        setattr(bout, k, v)
-    session.add(bout)
+        setattr(row, k, v)
+    session.add(row)
     session.commit()
-    session.refresh(bout)
-    return bout
+    session.refresh(row)
+    return row
+
+
+def update_bout(session: Session, *, bout: Bout, changes: dict[str, Any]) -> Bout:
+    return _save_changes(session, bout, changes)
 
 
 def delete_bout(session: Session, *, bout: Bout) -> None:
@@ -121,12 +129,7 @@ def upsert_identity(session: Session, *, bout_id: int, person_id: int, changes: 
     ident = session.exec(select(Identity).where(Identity.session_id == bout_id, Identity.person_id == person_id)).first()
     if ident is None:
         ident = Identity(session_id=bout_id, person_id=person_id, color=OTHER_COLORS[person_id % len(OTHER_COLORS)])
-    for k, v in changes.items():
-        setattr(ident, k, v)
-    session.add(ident)
-    session.commit()
-    session.refresh(ident)
-    return ident
+    return _save_changes(session, ident, changes)
 
 
 # ---------------------------------------------------------------- jobs

@@ -215,6 +215,20 @@ def track_view(dets: Detections2D, rows: np.ndarray, fps: float, cfg: TrackConfi
             t.x[4:] = 0.0
         boxes, scores = dets.bbox_xyxy_px[fr], dets.bbox_score[fr]
         embs = [limb_embedding(dets.keypoints_px[r], ok_all[r], limbs) for r in fr]
+
+        def observe(
+            track: _Track,
+            d: int,
+            f: int = int(f),
+            fr: np.ndarray = fr,
+            boxes: np.ndarray = boxes,
+            embs: list[tuple[np.ndarray, np.ndarray]] = embs,
+        ) -> None:
+            """Update ``track`` with this frame's detection ``d`` (an index into ``fr``)."""
+            track.observe(
+                int(fr[d]), f, boxes[d], dets.keypoints_px[fr[d]], ok_all[fr[d]], embs[d], cfg.embed_momentum
+            )
+
         high = np.flatnonzero(scores >= cfg.high_score)
         low = np.flatnonzero((scores >= cfg.low_score) & (scores < cfg.high_score))
         # Stage 1: confident detections vs every active track, IoU + OKS.
@@ -232,15 +246,7 @@ def track_view(dets: Detections2D, rows: np.ndarray, fps: float, cfg: TrackConfi
             sim = np.where(iou > 0, sim, 0.0)
             for i, j in _assign(sim, cfg.min_similarity):
                 d = int(high[j])
-                active[i].observe(
-                    int(fr[d]),
-                    int(f),
-                    boxes[d],
-                    dets.keypoints_px[fr[d]],
-                    ok_all[fr[d]],
-                    embs[d],
-                    cfg.embed_momentum,
-                )
+                observe(active[i], d)
                 matched_t.add(i)
                 matched_d.add(d)
         # Stage 2: low-score detections vs the remaining active tracks, IoU only.
@@ -250,15 +256,7 @@ def track_view(dets: Detections2D, rows: np.ndarray, fps: float, cfg: TrackConfi
             for i, j in _assign(iou_matrix(tb, boxes[low]), cfg.low_min_iou):
                 d = int(low[j])
                 t = active[rest[i]]
-                t.observe(
-                    int(fr[d]),
-                    int(f),
-                    boxes[d],
-                    dets.keypoints_px[fr[d]],
-                    ok_all[fr[d]],
-                    embs[d],
-                    cfg.embed_momentum,
-                )
+                observe(t, d)
                 matched_t.add(rest[i])
                 matched_d.add(d)
         # Tracks unmatched for too long become lost.
@@ -298,15 +296,7 @@ def track_view(dets: Detections2D, rows: np.ndarray, fps: float, cfg: TrackConfi
                 d = new[b]
                 t = lost[a]
                 t.x, t.P = _kalman_init(boxes[d])
-                t.observe(
-                    int(fr[d]),
-                    int(f),
-                    boxes[d],
-                    dets.keypoints_px[fr[d]],
-                    ok_all[fr[d]],
-                    embs[d],
-                    cfg.embed_momentum,
-                )
+                observe(t, d)
                 revived.append(a)
                 matched_d.add(d)
             for a in sorted(revived, reverse=True):
