@@ -75,6 +75,12 @@ class HumanoidConfig:
     floor_margin_m: float = 0.0
     """Floor contact margin: the soft contact settles ~2-3 mm into its margin, so
     soles rest on z ≈ 0 instead of sinking into the floor."""
+    floor_solref: tuple[float, float] = (0.02, 1.0)
+    """MuJoCo ``solref`` of floor contacts: (time constant s, damping ratio), or
+    (−stiffness, −damping) when negative (see MuJoCo's solver parameters)."""
+    floor_solimp: tuple[float, float, float] = (0.9, 0.95, 0.001)
+    """MuJoCo ``solimp`` (d0, dwidth, width) of floor contacts: an impedance closer to 1
+    makes the floor harder (less soft-contact sinking under a landing boxer)."""
     body_solref_timeconst_s: float = 0.02
     """Contact time constant of body geoms (inter-person contacts); softer than the
     soles' (0.02 s) so that overlapping athletes are pushed apart gently."""
@@ -286,8 +292,9 @@ def build_scene_mjcf(
   </visual>
 {asset_xml}  <worldbody>
     <light pos="0 0 6" dir="0 0 -1"/>
-    <geom name="floor" type="plane" size="20 20 0.1" contype="1" conaffinity="2147483647" friction="{fr:.3g} 0.01 0.001"
-          margin="{cfg.floor_margin_m:.4g}" rgba="0.85 0.85 0.8 1"/>
+    <geom name="floor" type="plane" size="20 20 0.1" priority="1" contype="1" conaffinity="2147483647" friction="{fr:.3g} 0.01 0.001"
+          margin="{cfg.floor_margin_m:.4g}" solimp="{' '.join(f'{v:.6g}' for v in cfg.floor_solimp)}"
+          solref="{' '.join(f'{v:.6g}' for v in cfg.floor_solref)}" rgba="0.85 0.85 0.8 1"/>
 {chr(10).join(bodies)}
   </worldbody>
   <contact>

@@ -34,6 +34,7 @@ from pipeline.schema.results import BodyFit, PhysicsResult
 
 if TYPE_CHECKING:
     from pipeline.backends.humanoid_skeleton import Skeleton
+    from pipeline.backends.mujoco_humanoid import HumanoidConfig
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +92,15 @@ class PhysicsConfig:
     """Sliding friction between the athletes' body geoms (soles and floor: 1.0)."""
     servo_torque_per_kg: float = 6.0
     """Servo torque limit (N·m per kg of body mass, times the joint's strength)."""
+    separate_reference: bool = True
+    """Free each frame of the multi-person reference of inter-person overlap before
+    tracking it (``mujoco_reference.separate_reference``)."""
+    floor_solref: tuple[float, float] = (0.02, 1.0)
+    """MuJoCo ``solref`` of floor contacts (see ``HumanoidConfig.floor_solref``)."""
+    floor_solimp: tuple[float, float, float] = (0.9, 0.95, 0.001)
+    """MuJoCo ``solimp`` of floor contacts (see ``HumanoidConfig.floor_solimp``)."""
+    floor_margin_m: float = 0.0
+    """Floor contact margin (see ``HumanoidConfig.floor_margin_m``)."""
     body_solref_s: float = 0.02
     """Contact time constant of body geoms (soles: 0.02 s); larger = softer
     inter-person contacts."""
@@ -122,6 +132,14 @@ class PhysicsConfig:
             raise ValueError(f"PhysicsConfig: bad solver settings max_iter={self.max_iter}, deriv_every={self.deriv_every}, n_alpha={self.n_alpha}")
         if self.substeps < 1:
             raise ValueError(f"PhysicsConfig.substeps must be >= 1, got {self.substeps}")
+        if len(self.floor_solref) != 2 or len(self.floor_solimp) != 3 or not np.all(np.isfinite([*self.floor_solref, *self.floor_solimp])):
+            raise ValueError(
+                f"PhysicsConfig: floor_solref needs 2 finite numbers and floor_solimp 3, got {self.floor_solref}, {self.floor_solimp}"
+            )
+        if not (0.0 < self.floor_solimp[0] < 1.0 and 0.0 < self.floor_solimp[1] < 1.0 and self.floor_solimp[2] > 0.0):
+            raise ValueError(f"PhysicsConfig.floor_solimp must be (d0, dwidth in (0, 1), width > 0), got {self.floor_solimp}")
+        if self.floor_margin_m < 0.0:
+            raise ValueError(f"PhysicsConfig.floor_margin_m must be >= 0, got {self.floor_margin_m}")
         if self.max_frames < 0:
             raise ValueError(f"PhysicsConfig.max_frames must be >= 0, got {self.max_frames}")
 
@@ -184,6 +202,25 @@ def build_skeletons(
     return [skeleton_from_keypoints(kp, r) for r in rows], "keypoints"
 
 
+def humanoid_config(cfg: PhysicsConfig) -> HumanoidConfig:
+    """The MJCF generator's settings of a physics stage configuration."""
+    from pipeline.backends.mujoco_humanoid import HumanoidConfig
+
+    return HumanoidConfig(
+        residual_root=cfg.residual_root != "off", self_collision=cfg.self_collision, substeps=cfg.substeps,
+        residual_force_frac=cfg.residual_force_frac,
+        kp_per_kg=cfg.servo_kp_per_kg,
+        torque_per_kg=cfg.servo_torque_per_kg,
+        body_solref_timeconst_s=cfg.body_solref_s,
+        residual_saturation_m=cfg.residual_saturation_m,
+        armature=cfg.armature,
+        body_friction=cfg.body_friction,
+        floor_solimp=tuple(cfg.floor_solimp),  # type: ignore[arg-type]
+        floor_solref=tuple(cfg.floor_solref),  # type: ignore[arg-type]
+        floor_margin_m=cfg.floor_margin_m,
+    )
+
+
 def run(
     inputs: PhysicsInputs,
     cfg: PhysicsConfig = PhysicsConfig(),
@@ -195,7 +232,6 @@ def run(
     lacks the COCO-17 joints.
     """
     from pipeline.backends import mujoco_physics as mp
-    from pipeline.backends.mujoco_humanoid import HumanoidConfig
     from pipeline.backends.mujoco_ilqr import ILQRConfig
     from pipeline.backends.mujoco_tracking import CostWeights
 
@@ -210,16 +246,7 @@ def run(
     rows = _select_persons(kp)
     pids = [int(kp.person_ids[r]) for r in rows]
     skels, skeleton_kind = build_skeletons(kp, rows, inputs.bodyfit, cfg)
-    hcfg = HumanoidConfig(
-        residual_root=cfg.residual_root != "off", self_collision=cfg.self_collision, substeps=cfg.substeps,
-        residual_force_frac=cfg.residual_force_frac,
-        kp_per_kg=cfg.servo_kp_per_kg,
-        torque_per_kg=cfg.servo_torque_per_kg,
-        body_solref_timeconst_s=cfg.body_solref_s,
-        residual_saturation_m=cfg.residual_saturation_m,
-        armature=cfg.armature,
-        body_friction=cfg.body_friction,
-    )
+    hcfg = humanoid_config(cfg)
     scfg = mp.SolverConfig(
         window=cfg.window,
         commit=cfg.commit,
@@ -249,7 +276,7 @@ def run(
     done = [0]
     for g in groups:
         sub = scene if len(g) == len(rows) else mp.build_scene([skels[i] for i in g], [pids[i] for i in g], kp.fps, kp.joint_names, hcfg)
-        ref, targets, weight = mp.build_reference(sub, kp, [rows[i] for i in g])
+        ref, targets, weight = mp.build_reference(sub, kp, [rows[i] for i in g], separate=cfg.separate_reference)
 
         def prog(d: int, n: int, msg: str, _g: list[int] = g) -> None:
             if progress is not None:

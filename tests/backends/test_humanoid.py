@@ -104,6 +104,29 @@ def test_self_collision_filtering() -> None:
     assert not np.any((pa == pb) & (pa >= 0))
 
 
+def test_floor_contact_parameters_govern_floor_contacts() -> None:
+    """The floor has priority: its solref/solimp/margin (HumanoidConfig) are the ones
+    MuJoCo uses for every floor contact, whatever the body geom's own settings."""
+    skel = build_skeleton(dict(_DEFAULT_LENGTHS))
+    cfg = HumanoidConfig(floor_solref=(0.03, 1.2), floor_solimp=(0.8, 0.9, 0.002), floor_margin_m=0.004)
+    model = load_model(build_scene_mjcf([skel], [0], 50.0, cfg))
+    lay = scene_layout(model, [0])
+    data = mujoco.MjData(model)
+    data.qpos[lay.persons[0].qpos_adr + 2] -= 0.2  # sink the person into the floor
+    mujoco.mj_forward(model, data)
+    floor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+    on_floor = [c for c in range(data.ncon) if floor in data.contact.geom[c]]
+    assert on_floor, "a sunk person must touch the floor"
+    for c in on_floor:
+        con = data.contact[c]
+        np.testing.assert_allclose(con.solref, (0.03, 1.2))
+        np.testing.assert_allclose(con.solimp[:3], (0.8, 0.9, 0.002))
+        assert con.includemargin == pytest.approx(0.004)
+    # The defaults keep MuJoCo's standard soft floor.
+    default = load_model(build_scene_mjcf([skel], [0], 50.0))
+    np.testing.assert_allclose(default.geom_solref[floor], (0.02, 1.0))
+
+
 def test_random_servo_targets_stay_stable() -> None:
     """The actuation choice: PD servos at the video rate survive random targets
     (two overlapping people, ground contact) without MuJoCo instabilities."""

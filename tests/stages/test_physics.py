@@ -64,6 +64,11 @@ def test_two_person_clip_ends_with_less_penetration() -> None:
     # Recorded contacts include both feet of both persons on the ground.
     ground = res.contact_person.min(axis=1) == -1
     assert ground.any() and set(res.contact_person[ground].max(axis=1).tolist()) == {0, 1}
+    # Tracking the overlapping reference as it is (no separation first): the
+    # simulation's contacts alone still push the two bodies apart.
+    raw = run(PhysicsInputs(kp), PhysicsConfig(window=5, commit=3, max_iter=2, n_alpha=3, separate_reference=False))
+    pen_raw = inter_person_penetration_mm(raw.keypoints)
+    assert pen_raw[-1] < 0.5 * pen_in[-1]
 
 
 def test_single_person_mode_and_config_checks() -> None:
@@ -79,6 +84,22 @@ def test_single_person_mode_and_config_checks() -> None:
     empty = kp.replace(valid=np.zeros_like(kp.valid))
     with pytest.raises(ValueError, match="no person"):
         run(PhysicsInputs(empty), FAST)
+
+
+def test_floor_settings_reach_the_mjcf_and_bad_ones_are_refused() -> None:
+    from pipeline.stages.physics import humanoid_config
+
+    cfg = PhysicsConfig(floor_solref=(0.03, 1.1), floor_solimp=(0.8, 0.9, 0.002), floor_margin_m=0.003, armature=0.1)
+    h = humanoid_config(cfg)
+    assert (h.floor_solref, h.floor_solimp, h.floor_margin_m, h.armature) == ((0.03, 1.1), (0.8, 0.9, 0.002), 0.003, 0.1)
+    # JSON stage configs give lists: they are accepted as tuples.
+    assert humanoid_config(PhysicsConfig(floor_solref=[0.02, 1.0])).floor_solref == (0.02, 1.0)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="floor_solref"):
+        PhysicsConfig(floor_solref=(0.02,))
+    with pytest.raises(ValueError, match="floor_solimp"):
+        PhysicsConfig(floor_solimp=(1.5, 0.9, 0.001))
+    with pytest.raises(ValueError, match="floor_margin_m"):
+        PhysicsConfig(floor_margin_m=-0.01)
 
 
 def test_step_is_registered() -> None:
