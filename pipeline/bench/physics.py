@@ -46,15 +46,68 @@ def _kinematic_input(bout: Any, source: str, seed: int) -> tuple[Keypoints3D, Bo
     return fit.keypoints3d, fit.bodyfit
 
 
+TARGETS = "targets (multi vs kinematic): pen max -80 %, skate -70 %, MPJPE <= +10 %, ground <= 2 mm; multi pen < single pen"
+DELTAS: tuple[tuple[str, str], ...] = (
+    ("inter_penetration_max_mm", "d_pen_max_pct"),
+    ("foot_skate_mm_per_frame", "d_skate_pct"),
+    ("mpjpe_mm", "d_mpjpe_pct"),
+)
+
+
+def with_deltas(rows: list[dict]) -> list[dict]:
+    """Add, to every physics row, its % change vs the kinematic row of the same seed
+    (penetration max, foot skating, MPJPE: the quantities of the targets)."""
+    kin = {r.get("seed"): r for r in rows if str(r["method"]).startswith("kinematic")}
+    out = []
+    for r in rows:
+        r = dict(r)
+        k = kin.get(r.get("seed"))
+        if k is not None and str(r["method"]).startswith("physics"):
+            for key, name in DELTAS:
+                r[name] = 100.0 * (r[key] / k[key] - 1.0) if k[key] > 0 else float("nan")
+        out.append(r)
+    return out
+
+
+def mean_over_seeds(rows: list[dict]) -> list[dict]:
+    """One row per method with every numeric column averaged over the seeds."""
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    out = []
+    for m in methods:
+        group = [r for r in rows if r["method"] == m]
+        agg: dict[str, Any] = {"method": m, "seed": f"mean of {len(group)}"}
+        for key in group[0]:
+            vals = [g.get(key) for g in group]
+            if key not in ("method", "seed") and all(isinstance(v, (int, float)) for v in vals):
+                agg[key] = float(np.mean([float(v) for v in vals if v is not None]))
+        out.append(agg)
+    return out
+
+
 def run_bench(
     n_frames: int = 150,
     cameras: int = 4,
     seed: int = 0,
     kinematic: Literal["triangulation", "fit", "noisy_gt"] = "fit",
     modes: tuple[str, ...] = ("multi", "single"),
+    seeds: tuple[int, ...] | None = None,
     **physics_overrides: Any,
 ) -> list[dict]:
-    """Rows: ground truth, kinematic input, then one per physics mode."""
+    """Rows: ground truth, kinematic input, then one per physics mode, for ``seed`` or
+    for each of ``seeds`` (different bouts; then also their means: single-bout physics
+    numbers move by several mm between bouts)."""
+    rows: list[dict] = []
+    for s in seeds if seeds else (seed,):
+        rows += _run_seed(int(s), n_frames, cameras, kinematic, tuple(modes), physics_overrides)
+    rows = with_deltas(rows)
+    if seeds and len(seeds) > 1:
+        rows += mean_over_seeds(rows)
+    return rows
+
+
+def _run_seed(
+    seed: int, n_frames: int, cameras: int, kinematic: str, modes: tuple[str, ...], physics_overrides: dict[str, Any]
+) -> list[dict]:
     from pipeline.synthetic.bout import make_bout
     from pipeline.synthetic.config import SyntheticConfig
 
@@ -62,8 +115,8 @@ def run_bench(
     gt = bout.gt
     kin, bodyfit = _kinematic_input(bout, kinematic, seed)
     rows: list[dict] = [
-        {"method": "ground truth", **physics_metrics(gt, gt, bout.foot_contact)},
-        {"method": f"kinematic ({kinematic})", **physics_metrics(kin, gt, bout.foot_contact)},
+        {"method": "ground truth", "seed": seed, **physics_metrics(gt, gt, bout.foot_contact)},
+        {"method": f"kinematic ({kinematic})", "seed": seed, **physics_metrics(kin, gt, bout.foot_contact)},
     ]
     motion_s = (n_frames - 1) / gt.fps
     for mode in modes:
@@ -75,6 +128,7 @@ def run_bench(
         rows.append(
             {
                 "method": f"physics ({mode}, {st['skeleton']} {st['geometry']})",
+                "seed": seed,
                 **physics_metrics(out.keypoints, gt, bout.foot_contact),
                 "compute_s": wall,
                 "realtime_factor": wall / motion_s,
@@ -92,6 +146,7 @@ def run_bench(
 
 COLUMNS: tuple[tuple[str, str], ...] = (
     ("method", "method"),
+    ("seed", "seed"),
     ("inter_penetration_max_mm", "pen max mm"),
     ("inter_penetration_mean_mm", "pen mean mm"),
     ("ground_penetration_max_mm", "ground max mm"),
@@ -99,6 +154,9 @@ COLUMNS: tuple[tuple[str, str], ...] = (
     ("foot_speed_contact_mm_s", "foot v mm/s"),
     ("foot_height_err_contact_mm", "foot z err mm"),
     ("mpjpe_mm", "MPJPE mm"),
+    ("d_pen_max_pct", "Δpen max %"),
+    ("d_skate_pct", "Δskate %"),
+    ("d_mpjpe_pct", "ΔMPJPE %"),
     ("accel_err_mm_per_frame2", "accel err"),
     ("jerk_mm_per_frame3", "jerk"),
     ("realtime_factor", "RTF ×"),
@@ -114,9 +172,12 @@ def print_table(rows: list[dict]) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    table = Table(title="physics: kinematic vs single/multi-person physics (synthetic bout)")
+    table = Table(title="physics: kinematic vs single/multi-person physics (synthetic bout)", caption=TARGETS)
     for _, head in COLUMNS:
-        table.add_column(head, justify="right" if head != "method" else "left")
+        if head == "method":
+            table.add_column(head, justify="left", no_wrap=True)
+        else:
+            table.add_column(head, justify="right", overflow="fold")
     for r in rows:
         cells = []
         for key, _ in COLUMNS:
