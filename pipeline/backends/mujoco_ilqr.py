@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -91,6 +92,10 @@ class ILQRConfig:
     substeps: int = 1
     """MuJoCo steps per control step (the model's timestep is the control period
     divided by this); A and B are chained over the substeps."""
+    rollout_threads: int = 1
+    """Line-search candidates rolled out together on this many threads (each on its own
+    ``MjData``; MuJoCo releases the GIL while it steps, the Python cost does not).
+    1 = one after the other."""
 
 
 @dataclass
@@ -349,6 +354,52 @@ def optimise(
     The returned cost history is non-increasing (a step is only accepted if it
     lowers the total cost). Raises ``UnstableRollout`` if the initial rollout is unstable.
     """
+    if cfg.rollout_threads > 1:
+        with ThreadPoolExecutor(max_workers=cfg.rollout_threads, thread_name_prefix="ilqr-rollout") as pool:
+            return _optimise(model, data, cost, qpos0, qvel0, ctrl_init, cfg, active, t0, warm0, pool)
+    return _optimise(model, data, cost, qpos0, qvel0, ctrl_init, cfg, active, t0, warm0, None)
+
+
+def _candidates(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    cost: Cost,
+    qpos0: np.ndarray,
+    qvel0: np.ndarray,
+    nominal: Trajectory,
+    K: np.ndarray,
+    k: np.ndarray,
+    alphas: np.ndarray,
+    act: np.ndarray,
+    t0: int,
+    warm0: np.ndarray | None,
+    cfg: ILQRConfig,
+    pool: ThreadPoolExecutor | None,
+) -> list[Trajectory]:
+    """Closed-loop rollouts of every line-search step size, in ``alphas`` order."""
+
+    def one(a: float, d: mujoco.MjData) -> Trajectory:
+        return rollout(model, d, cost, qpos0, qvel0, nominal.ctrl, t0, nominal, K, k, a, act, warm0, cfg.substeps)
+
+    if pool is None:
+        return [one(float(a), data) for a in alphas]
+    datas = [data] + [mujoco.MjData(model) for _ in alphas[1:]]
+    return list(pool.map(one, [float(a) for a in alphas], datas))
+
+
+def _optimise(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    cost: Cost,
+    qpos0: np.ndarray,
+    qvel0: np.ndarray,
+    ctrl_init: np.ndarray,
+    cfg: ILQRConfig,
+    active: np.ndarray | None,
+    t0: int,
+    warm0: np.ndarray | None,
+    pool: ThreadPoolExecutor | None,
+) -> ILQRResult:
     act = np.arange(model.nu) if active is None else np.asarray(active, dtype=np.int64)
     secs = {"derivatives_fd": 0.0, "derivatives_cost": 0.0, "backward": 0.0, "rollouts": 0.0}
     c0 = time.perf_counter()
@@ -378,10 +429,7 @@ def optimise(
             K, k, _, _ = bp
             best: Trajectory | None = None
             c0 = time.perf_counter()
-            for a in alphas:
-                cand = rollout(
-                    model, data, cost, qpos0, qvel0, nominal.ctrl, t0, nominal, K, k, float(a), act, warm0, cfg.substeps
-                )
+            for cand in _candidates(model, data, cost, qpos0, qvel0, nominal, K, k, alphas, act, t0, warm0, cfg, pool):
                 if cand.total < (best.total if best is not None else nominal.total):
                     best = cand
             secs["rollouts"] += time.perf_counter() - c0

@@ -208,8 +208,9 @@ class TrackingCost:
                 if not fc[t, i, k]:
                     continue
                 for sid in self._feet[i][k]:
-                    mujoco.mj_jacSite(self.model, data, self._jac, None, int(sid))
-                    J = self._jac[:2]
+                    jac = np.zeros((3, self.model.nv))  # not self._jac: rollouts may run on threads
+                    mujoco.mj_jacSite(self.model, data, jac, None, int(sid))
+                    J = jac[:2]
                     rs.append(J @ data.qvel)
                     if with_jac:
                         js.append(J.copy())

@@ -78,6 +78,22 @@ def test_ilqr_decreases_cost_monotonically() -> None:
     assert again.total == pytest.approx(res.traj.total, rel=1e-9)
 
 
+def test_line_search_on_threads_gives_the_same_result() -> None:
+    """Candidates rolled out together (each on its own MjData) pick the same steps."""
+    model = mujoco.MjModel.from_xml_string(ARM_XML)
+    cost = TipCost(np.array([0.3, 0.0, 1.45]))
+    runs = [
+        optimise(
+            model, mujoco.MjData(model), cost, np.zeros(2), np.zeros(2), np.zeros((30, 2)),
+            ILQRConfig(max_iter=6, rel_tol=0.0, rollout_threads=th),
+        )
+        for th in (1, 3)
+    ]
+    assert runs[0].cost_history == runs[1].cost_history
+    np.testing.assert_array_equal(runs[0].traj.qpos, runs[1].traj.qpos)
+    assert runs[1].cost_history[-1] < 0.5 * runs[1].cost_history[0]
+
+
 @pytest.mark.parametrize("substeps", [1, 2])
 def test_adjoint_gradient_matches_finite_differences(substeps: int) -> None:
     model = mujoco.MjModel.from_xml_string(ARM_XML.replace('timestep="0.02"', f'timestep="{0.02 / substeps}"'))

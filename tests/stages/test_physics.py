@@ -100,6 +100,8 @@ def test_floor_settings_reach_the_mjcf_and_bad_ones_are_refused() -> None:
         PhysicsConfig(floor_solimp=(1.5, 0.9, 0.001))
     with pytest.raises(ValueError, match="floor_margin_m"):
         PhysicsConfig(floor_margin_m=-0.01)
+    with pytest.raises(ValueError, match="rollout_threads"):
+        PhysicsConfig(rollout_threads=0)
 
 
 def test_step_is_registered() -> None:
