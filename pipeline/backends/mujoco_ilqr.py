@@ -19,6 +19,7 @@ One iteration:
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -354,10 +355,55 @@ def optimise(
     The returned cost history is non-increasing (a step is only accepted if it
     lowers the total cost). Raises ``UnstableRollout`` if the initial rollout is unstable.
     """
-    if cfg.rollout_threads > 1:
-        with ThreadPoolExecutor(max_workers=cfg.rollout_threads, thread_name_prefix="ilqr-rollout") as pool:
-            return _optimise(model, data, cost, qpos0, qvel0, ctrl_init, cfg, active, t0, warm0, pool)
-    return _optimise(model, data, cost, qpos0, qvel0, ctrl_init, cfg, active, t0, warm0, None)
+    pool = ThreadPoolExecutor(cfg.rollout_threads, thread_name_prefix="ilqr-rollout") if cfg.rollout_threads > 1 else None
+    with pool if pool is not None else contextlib.nullcontext():
+        act = np.arange(model.nu) if active is None else np.asarray(active, dtype=np.int64)
+        secs = {"derivatives_fd": 0.0, "derivatives_cost": 0.0, "backward": 0.0, "rollouts": 0.0}
+        c0 = time.perf_counter()
+        nominal = rollout(model, data, cost, qpos0, qvel0, ctrl_init, t0=t0, warm0=warm0, substeps=cfg.substeps)
+        secs["rollouts"] += time.perf_counter() - c0
+        if not nominal.stable:
+            raise UnstableRollout("iLQR: the initial control sequence makes the simulation unstable")
+        history = [nominal.total]
+        alphas = np.logspace(0.0, np.log10(cfg.alpha_min), cfg.n_alpha)
+        mu = cfg.mu_init
+        it = 0
+        while it < cfg.max_iter:
+            it += 1
+            lin = linearise(model, data, cost, nominal, cfg, act, t0=t0)
+            secs["derivatives_fd"] += lin.seconds_fd
+            secs["derivatives_cost"] += lin.seconds_cost
+            improved = False
+            tries = 0
+            while mu <= cfg.mu_max and tries <= cfg.max_backtracks:
+                tries += 1
+                c0 = time.perf_counter()
+                bp = backward_pass(lin, mu)
+                secs["backward"] += time.perf_counter() - c0
+                if bp is None:
+                    mu = max(mu * cfg.mu_up, 1e-4)
+                    continue
+                K, k, _, _ = bp
+                best: Trajectory | None = None
+                c0 = time.perf_counter()
+                for cand in _candidates(model, data, cost, qpos0, qvel0, nominal, K, k, alphas, act, t0, warm0, cfg, pool):
+                    if cand.total < (best.total if best is not None else nominal.total):
+                        best = cand
+                secs["rollouts"] += time.perf_counter() - c0
+                if best is not None:
+                    nominal = best
+                    improved = True
+                    mu = max(mu * cfg.mu_down, cfg.mu_min)
+                    break
+                mu = max(mu * cfg.mu_up, 1e-4)
+            if not improved:
+                log.debug("iLQR: no descent at iteration %d (mu=%.3g)", it, mu)
+                break
+            prev = history[-1]
+            history.append(nominal.total)
+            if (prev - nominal.total) <= cfg.rel_tol * abs(prev):
+                break
+        return ILQRResult(traj=nominal, cost_history=history, iterations=it, mu=mu, seconds=secs)
 
 
 def _candidates(
@@ -385,65 +431,3 @@ def _candidates(
         return [one(float(a), data) for a in alphas]
     datas = [data] + [mujoco.MjData(model) for _ in alphas[1:]]
     return list(pool.map(one, [float(a) for a in alphas], datas))
-
-
-def _optimise(
-    model: mujoco.MjModel,
-    data: mujoco.MjData,
-    cost: Cost,
-    qpos0: np.ndarray,
-    qvel0: np.ndarray,
-    ctrl_init: np.ndarray,
-    cfg: ILQRConfig,
-    active: np.ndarray | None,
-    t0: int,
-    warm0: np.ndarray | None,
-    pool: ThreadPoolExecutor | None,
-) -> ILQRResult:
-    act = np.arange(model.nu) if active is None else np.asarray(active, dtype=np.int64)
-    secs = {"derivatives_fd": 0.0, "derivatives_cost": 0.0, "backward": 0.0, "rollouts": 0.0}
-    c0 = time.perf_counter()
-    nominal = rollout(model, data, cost, qpos0, qvel0, ctrl_init, t0=t0, warm0=warm0, substeps=cfg.substeps)
-    secs["rollouts"] += time.perf_counter() - c0
-    if not nominal.stable:
-        raise UnstableRollout("iLQR: the initial control sequence makes the simulation unstable")
-    history = [nominal.total]
-    alphas = np.logspace(0.0, np.log10(cfg.alpha_min), cfg.n_alpha)
-    mu = cfg.mu_init
-    it = 0
-    while it < cfg.max_iter:
-        it += 1
-        lin = linearise(model, data, cost, nominal, cfg, act, t0=t0)
-        secs["derivatives_fd"] += lin.seconds_fd
-        secs["derivatives_cost"] += lin.seconds_cost
-        improved = False
-        tries = 0
-        while mu <= cfg.mu_max and tries <= cfg.max_backtracks:
-            tries += 1
-            c0 = time.perf_counter()
-            bp = backward_pass(lin, mu)
-            secs["backward"] += time.perf_counter() - c0
-            if bp is None:
-                mu = max(mu * cfg.mu_up, 1e-4)
-                continue
-            K, k, _, _ = bp
-            best: Trajectory | None = None
-            c0 = time.perf_counter()
-            for cand in _candidates(model, data, cost, qpos0, qvel0, nominal, K, k, alphas, act, t0, warm0, cfg, pool):
-                if cand.total < (best.total if best is not None else nominal.total):
-                    best = cand
-            secs["rollouts"] += time.perf_counter() - c0
-            if best is not None:
-                nominal = best
-                improved = True
-                mu = max(mu * cfg.mu_down, cfg.mu_min)
-                break
-            mu = max(mu * cfg.mu_up, 1e-4)
-        if not improved:
-            log.debug("iLQR: no descent at iteration %d (mu=%.3g)", it, mu)
-            break
-        prev = history[-1]
-        history.append(nominal.total)
-        if (prev - nominal.total) <= cfg.rel_tol * abs(prev):
-            break
-    return ILQRResult(traj=nominal, cost_history=history, iterations=it, mu=mu, seconds=secs)
