@@ -38,7 +38,7 @@ from pipeline.backends.anny_fit_terms import MeshMoments, lever_arms, rest_tails
 from pipeline.backends.anny_fk import SparseKeypoints, keypoints_from_bones
 from pipeline.backends.anny_model import AnnyBody, anny_body
 from pipeline.backends.anny_priors import joint_limit_penalty, joint_limit_tables, load_pose_prior
-from pipeline.backends.fit_common import accel_term, ground_term, reprojection_term
+from pipeline.backends.fit_common import ground_term, sequence_terms
 from pipeline.schema.joints import COCO17_FEET, FOOT_JOINTS
 from pipeline.stages.fit_config import FitConfig
 
@@ -212,21 +212,7 @@ def _fit(
         full = torch.cat([roma.rotmat_to_rotvec(G_root)[:, None], pose], dim=1)
         G, x = forward_kinematics_rootmat(body, G_root, pose, root, heads)
         kp = keypoints(G, x, offsets)
-        out: dict[str, torch.Tensor] = {}
-        out["3d"] = cfg.w_3d * (w3d * (kp - kp3d).square().sum(-1)).sum()
-        if use_2d and cfg.w_2d > 0:
-            out["2d"] = cfg.w_2d * reprojection_term(kp, P_t, uv, w2d, cfg)
-        out["reg"] = cfg.w_reg * pose.square().sum()
-        if moments is not None and nf > 1:
-            pz = pose.reshape(npers, nf, nb - 1, 3)
-            gz = G_root.reshape(npers, nf, 3, 3)
-            sm = (pz[:, 1:] - pz[:, :-1]).square().sum() + 0.5 * (gz[:, 1:] - gz[:, :-1]).square().sum()
-            t = x - (G @ heads[..., None])[..., 0]
-            A = torch.cat([G, t[..., None]], dim=-1).reshape(npers, nf, nb, 3, 4)
-            sm = sm + moments(A[:, 1:] - A[:, :-1])
-            out["smooth"] = cfg.w_smooth * sm
-        if cfg.w_accel > 0 and nf > 2:  # pseudo-Huber: quadratic for jitter, linear for punches
-            out["accel"] = cfg.w_accel * accel_term(kp.reshape(npers, nf, nj, 3), cfg.accel_scale_m)
+        out = sequence_terms(cfg, kp, kp3d, w3d, P_t, uv, w2d, use_2d, pose, G_root, G, x, heads, npers, nf, moments)
         if cfg.calibrate_landmarks:
             out["landmarks"] = cfg.w_landmarks * offsets.square().sum()
         if cfg.refine_shape:

@@ -166,6 +166,52 @@ def accel_term(kp: torch.Tensor, scale_m: float) -> torch.Tensor:
     return a2.sum()
 
 
+def sequence_terms(
+    cfg: FitConfig,
+    kp: torch.Tensor,
+    kp3d: torch.Tensor,
+    w3d: torch.Tensor,
+    P_px: torch.Tensor,
+    uv_px: torch.Tensor,
+    w2d: torch.Tensor,
+    use_2d: bool,
+    pose: torch.Tensor,
+    G_root: torch.Tensor,
+    G: torch.Tensor,
+    x: torch.Tensor,
+    rest_heads: torch.Tensor,
+    npers: int,
+    nf: int,
+    mesh_velocity: Callable[[torch.Tensor], torch.Tensor] | None,
+) -> dict[str, torch.Tensor]:
+    """The weighted loss terms both body models share, in this order: ``3d``, ``2d``
+    (when ``use_2d``), ``reg``, ``smooth``, ``accel``.
+
+    Rows are person-major (``npers * nf``): kp, kp3d (rows, joints, 3); w3d (rows, joints);
+    pose (rows, bones - 1, 3) local rotation vectors; G_root (rows, 3, 3); G (rows, bones,
+    3, 3) and x (rows, bones, 3) world bone frames, ``rest_heads`` (rows, bones, 3) their
+    rest positions. ``mesh_velocity`` maps the frame-to-frame change of the bones' affine
+    transforms (persons, frames - 1, bones, 3, 4) to the summed squared mesh-vertex velocity;
+    None leaves out ``smooth``.
+    """
+    out: dict[str, torch.Tensor] = {}
+    out["3d"] = cfg.w_3d * (w3d * (kp - kp3d).square().sum(-1)).sum()
+    if use_2d and cfg.w_2d > 0:
+        out["2d"] = cfg.w_2d * reprojection_term(kp, P_px, uv_px, w2d, cfg)
+    out["reg"] = cfg.w_reg * pose.square().sum()
+    nb = G.shape[-3]
+    if mesh_velocity is not None and nf > 1:
+        pz = pose.reshape(npers, nf, nb - 1, 3)
+        gz = G_root.reshape(npers, nf, 3, 3)
+        sm = (pz[:, 1:] - pz[:, :-1]).square().sum() + 0.5 * (gz[:, 1:] - gz[:, :-1]).square().sum()
+        t = x - (G @ rest_heads[..., None])[..., 0]
+        A = torch.cat([G, t[..., None]], dim=-1).reshape(npers, nf, nb, 3, 4)
+        out["smooth"] = cfg.w_smooth * (sm + mesh_velocity(A[:, 1:] - A[:, :-1]))
+    if cfg.w_accel > 0 and nf > 2:  # pseudo-Huber: quadratic for jitter, linear for punches
+        out["accel"] = cfg.w_accel * accel_term(kp.reshape(npers, nf, kp.shape[-2], 3), cfg.accel_scale_m)
+    return out
+
+
 def ground_term(kp: torch.Tensor, foot: torch.Tensor, sole_z: torch.Tensor) -> torch.Tensor:
     """Unweighted ground term: squared depth below z = 0 of the foot keypoints ``kp[:, foot]``
     and of the sole vertices' heights ``sole_z``."""

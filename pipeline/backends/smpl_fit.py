@@ -36,15 +36,14 @@ from pipeline.backends.anny_priors import GMMPrior, joint_limit_penalty
 from pipeline.backends.fit_common import (
     SHAPE_LIMBS,
     PersonObservations,
-    accel_term,
     ground_term,
     init_roots,
     joint_idx,
     lbs_moment_factors,
     min_rotation,
     observed_lengths,
-    reprojection_term,
     run_lbfgs,
+    sequence_terms,
 )
 from pipeline.backends.smpl_body import N_BETAS, SmplBody, forward, keypoints, skin, smpl_body
 from pipeline.schema.joints import COCO17_FEET, FOOT_JOINTS
@@ -383,23 +382,17 @@ def _fit(
             kp = kp + (G[:, dom] @ offsets[row_person][..., None])[..., 0]
         return pose, offsets, betas, b_rows, J, G_root, G, x, R_local, kp
 
+    mesh_velocity = None
+    if moments is not None:
+        m_ = moments
+
+        def mesh_velocity(dA: torch.Tensor) -> torch.Tensor:
+            flat = dA.permute(0, 1, 3, 2, 4).reshape(npers, (nf - 1) * 3, nb * 4)
+            return (flat @ m_).square().sum()
+
     def evaluate(use_2d: bool) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         pose, offsets, betas, b_rows, J, G_root, G, x, R_local, kp = state()
-        out: dict[str, torch.Tensor] = {}
-        out["3d"] = cfg.w_3d * (w3d * (kp - kp3d).square().sum(-1)).sum()
-        if use_2d and cfg.w_2d > 0:
-            out["2d"] = cfg.w_2d * reprojection_term(kp, P_t, uv, w2d, cfg)
-        out["reg"] = cfg.w_reg * pose.square().sum()
-        if moments is not None and nf > 1:
-            pz = pose.reshape(npers, nf, nb - 1, 3)
-            gz = G_root.reshape(npers, nf, 3, 3)
-            sm = (pz[:, 1:] - pz[:, :-1]).square().sum() + 0.5 * (gz[:, 1:] - gz[:, :-1]).square().sum()
-            t = x - (G @ J[..., None])[..., 0]
-            A = torch.cat([G, t[..., None]], dim=-1).reshape(npers, nf, nb, 3, 4)
-            dA = (A[:, 1:] - A[:, :-1]).permute(0, 1, 3, 2, 4).reshape(npers, (nf - 1) * 3, nb * 4)
-            out["smooth"] = cfg.w_smooth * (sm + (dA @ moments).square().sum())
-        if cfg.w_accel > 0 and nf > 2:
-            out["accel"] = cfg.w_accel * accel_term(kp.reshape(npers, nf, nj, 3), cfg.accel_scale_m)
+        out = sequence_terms(cfg, kp, kp3d, w3d, P_t, uv, w2d, use_2d, pose, G_root, G, x, J, npers, nf, mesh_velocity)
         if cfg.calibrate_landmarks:
             out["landmarks"] = cfg.w_landmarks * offsets.square().sum()
         if cfg.refine_shape:

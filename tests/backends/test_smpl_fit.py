@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import pickle
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -252,6 +253,16 @@ def _keypoints_ref(body: sb.SmplBody, betas: np.ndarray, pose: np.ndarray, root:
     return joints[:, [names.index(n) for n in COCO17_FEET]]
 
 
+def _posed(body: sb.SmplBody, betas: np.ndarray, pose: np.ndarray, root: np.ndarray) -> tuple[Any, ...]:
+    """Our forward kinematics of a motion: per-frame betas, rest joints, bone frames G, x, R."""
+    b = torch.as_tensor(betas)[None].expand(pose.shape[0], len(betas))
+    J = body.rest_joints(b)
+    G, x, R = sb.forward(
+        body, J, roma.rotvec_to_rotmat(torch.as_tensor(pose[:, 0])), torch.as_tensor(pose[:, 1:]), torch.as_tensor(root)
+    )
+    return b, J, G, x, R
+
+
 def _observations(rig: CameraRig, xyz: np.ndarray, outlier_view: int | None = None) -> PersonObservations:
     nf, nj = xyz.shape[:2]
     uv, _ = project(rig, xyz)  # (V, F, J, 2)
@@ -288,15 +299,7 @@ def test_sparse_keypoints_match_smplx_forward(tmp_path: Path) -> None:
     write_synthetic_smpl(tmp_path, posedirs_scale=0.01, seed=1)
     body = sb.smpl_body("smpl", tmp_path)
     betas, pose, root, ref = _motion(body, 5, seed=2)
-    b = torch.as_tensor(betas)[None].expand(5, 10)
-    J = body.rest_joints(b)
-    G, x, R = sb.forward(
-        body,
-        J,
-        roma.rotvec_to_rotmat(torch.as_tensor(pose[:, 0])),
-        torch.as_tensor(pose[:, 1:]),
-        torch.as_tensor(root),
-    )
+    b, J, G, x, R = _posed(body, betas, pose, root)
     kp = sb.keypoints(body, b, J, G, x, R).numpy()
     assert np.abs(kp - ref).max() < 1e-7  # smplx stores its buffers through float32
     assert np.allclose(x[:, 0].numpy(), root)  # root_translation_m is the pelvis
@@ -525,15 +528,7 @@ def test_smplx_model_keypoints_and_fit(tmp_path: Path) -> None:
     body = sb.smpl_body("smplx", tmp_path)
     assert body.n_joints == 22 and body.joint_names[-1] == "right_wrist" and body.rig == "smplx-neutral"
     betas, pose, root, ref = _motion(body, 5, seed=7)
-    b = torch.as_tensor(betas)[None].expand(5, 10)
-    J = body.rest_joints(b)
-    G, x, R = sb.forward(
-        body,
-        J,
-        roma.rotvec_to_rotmat(torch.as_tensor(pose[:, 0])),
-        torch.as_tensor(pose[:, 1:]),
-        torch.as_tensor(root),
-    )
+    b, J, G, x, R = _posed(body, betas, pose, root)
     assert np.abs(sb.keypoints(body, b, J, G, x, R).numpy() - ref).max() < 1e-7
     rig = _rig(3)
     res = run(
