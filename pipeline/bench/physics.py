@@ -96,9 +96,13 @@ def run_bench(
     """Rows: ground truth, kinematic input, then one per physics mode, for ``seed`` or
     for each of ``seeds`` (different bouts; then also their means: single-bout physics
     numbers move by several mm between bouts)."""
+    if seeds is not None and (
+        isinstance(seeds, (str, bytes)) or not seeds or not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds)
+    ):
+        raise ValueError(f"bench physics: seeds must be a non-empty list of integers, e.g. seeds=[0,1]; got {seeds!r}")
     rows: list[dict] = []
     for s in seeds if seeds else (seed,):
-        rows += _run_seed(int(s), n_frames, cameras, kinematic, tuple(modes), physics_overrides)
+        rows += _run_seed(s, n_frames, cameras, kinematic, tuple(modes), physics_overrides)
     rows = with_deltas(rows)
     if seeds and len(seeds) > 1:
         rows += mean_over_seeds(rows)

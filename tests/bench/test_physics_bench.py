@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from pipeline.bench.physics import mean_over_seeds, with_deltas
+from pipeline.bench.physics import mean_over_seeds, run_bench, with_deltas
 
 
 def _row(method: str, seed: int, pen: float, skate: float, mpjpe: float) -> dict:
@@ -51,3 +51,9 @@ def test_mean_over_seeds_averages_numbers_per_method() -> None:
     assert mean[1]["mpjpe_mm"] == pytest.approx(45.0)
     assert mean[0]["seed"] == "mean of 2"
     assert "residual_windows" not in mean[0]  # text columns are not averaged
+
+
+@pytest.mark.parametrize("seeds", ["abc", [], [0.5], [True]])
+def test_bad_seeds_are_refused_before_any_work(seeds: object) -> None:
+    with pytest.raises(ValueError, match="seeds must be a non-empty list of integers"):
+        run_bench(seeds=seeds)  # type: ignore[arg-type]
