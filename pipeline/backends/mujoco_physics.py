@@ -39,6 +39,7 @@ __all__ = [
     "contact_inverse_dynamics",
     "contacts_and_sites",
     "count_windows",
+    "inter_person_depths",
     "inverse_kinematics",
     "lift_off_floor",
     "optimise_bout",
@@ -254,6 +255,22 @@ class FrameContacts:
     body: np.ndarray  # (c, 2) indices into body_names
     depth_m: np.ndarray  # (c,)
     body_names: tuple[str, ...]
+
+
+def inter_person_depths(scene: Scene, qpos: np.ndarray) -> np.ndarray:
+    """(frames,) deepest overlap (m) between geoms of different persons in each
+    configuration of ``qpos`` (0 where the persons do not overlap)."""
+    from pipeline.backends.mujoco_tracking import collision_depths
+
+    m, lay = scene.model, scene.layout
+    d = mujoco.MjData(m)
+    out = np.zeros(qpos.shape[0])
+    for f in range(qpos.shape[0]):
+        d.qpos[:] = qpos[f]
+        mujoco.mj_fwdPosition(m, d)
+        depth, _ = collision_depths(m, d, lay.geom_person, False)
+        out[f] = depth.max(initial=0.0)
+    return out
 
 
 def contacts_and_sites(scene: Scene, qpos: np.ndarray, qvel: np.ndarray) -> tuple[FrameContacts, np.ndarray]:

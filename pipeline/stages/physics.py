@@ -209,6 +209,49 @@ def build_skeletons(
     return [skeleton_from_keypoints(kp, r) for r in rows], "keypoints"
 
 
+def body_penetration_mm(
+    kp: Keypoints3D,
+    bodyfit: BodyFit | None = None,
+    cfg: PhysicsConfig = PhysicsConfig(),
+    person_ids: list[int] | None = None,
+    body_keypoints: Keypoints3D | None = None,
+) -> np.ndarray:
+    """(frames,) deepest overlap in mm between two athletes' *own bodies*: the humanoids
+    this stage builds (from ``bodyfit``, with ``cfg``'s geometry), each posed by inverse
+    kinematics onto ``kp``'s joints; no separation, no floor lift, no simulation.
+
+    ``pipeline.evaluate.physics_metrics`` measures penetration on fixed capsules around
+    the keypoints, which need not match a real athlete's volume; this measure uses
+    the body the physics stage collides. The humanoids are built as the stage builds
+    them from ``body_keypoints`` (default ``kp``; pass the physics input to score
+    another motion, e.g. ground truth, in the same bodies). ``person_ids`` restricts
+    the persons (default: all with motion).
+    Raises ``ValueError`` when fewer than two persons remain or one of them is not in
+    ``body_keypoints``.
+    """
+    from pipeline.backends import mujoco_physics as mp
+
+    rows = _select_persons(kp)
+    if person_ids is not None:
+        rows = [r for r in rows if int(kp.person_ids[r]) in {int(p) for p in person_ids}]
+    if len(rows) < 2:
+        raise ValueError(f"body_penetration_mm needs two persons with motion, got {len(rows)}")
+    pids = [int(kp.person_ids[r]) for r in rows]
+    bkp = kp if body_keypoints is None else body_keypoints
+    bids = [int(i) for i in bkp.person_ids]
+    lacking = [p for p in pids if p not in bids]
+    if lacking:
+        raise ValueError(f"body_penetration_mm: persons {lacking} are not in body_keypoints (ids {bids})")
+    skels, _ = build_skeletons(bkp, [bids.index(p) for p in pids], bodyfit, cfg)
+    scene = mp.build_scene(skels, pids, kp.fps, kp.joint_names, humanoid_config(cfg))
+    jidx = [kp.joint_names.index(n) for n in scene.site_names]
+    targets = kp.xyz_m[:, rows][:, :, jidx].astype(float)
+    weight = (kp.valid[:, rows][:, :, jidx] * np.clip(kp.confidence[:, rows][:, :, jidx], 0.0, 1.0)).astype(float)
+    targets = np.where(weight[..., None] > 0, targets, 0.0)
+    qpos = mp.inverse_kinematics(scene, targets, weight)
+    return 1000.0 * mp.inter_person_depths(scene, qpos)
+
+
 def humanoid_config(cfg: PhysicsConfig) -> HumanoidConfig:
     """The MJCF generator's settings of a physics stage configuration."""
     from pipeline.backends.mujoco_humanoid import HumanoidConfig
@@ -308,6 +351,7 @@ def run(
         for k, v in sol.seconds.items():
             secs[k] = secs.get(k, 0.0) + v
     contacts, sites = mp.contacts_and_sites(scene, qpos, qvel)
+    body_pen = 1000.0 * mp.inter_person_depths(scene, qpos) if len(rows) > 1 else np.zeros(F)
     lay = scene.layout
     result = PhysicsResult(
         person_ids=np.asarray(pids, dtype=np.int64),
@@ -352,6 +396,8 @@ def run(
         "resets": int(agg["resets"]),
         "residual_force_mean_frac_bw": float(np.mean(np.linalg.norm(resid[..., :3], axis=-1) / weight_n[None])),
         "mujoco_inter_penetration_max_mm": float(1000 * contacts.depth_m[inter].max(initial=0.0)),
+        "body_penetration_max_mm": float(body_pen.max(initial=0.0)),
+        "body_penetration_mean_mm": float(body_pen.mean()) if body_pen.size else 0.0,
         "compute_s": compute_s,
         "realtime_factor": compute_s / motion_s,
         **{f"seconds_{k}": v for k, v in secs.items()},

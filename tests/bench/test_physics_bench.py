@@ -36,6 +36,15 @@ def test_deltas_are_against_the_kinematic_row_of_the_same_seed() -> None:
     assert rows[3]["d_pen_max_pct"] == pytest.approx(20.0)
     assert rows[3]["d_mpjpe_pct"] == pytest.approx(-50.0)
     assert math.isnan(rows[3]["d_skate_pct"])  # no skating in the input: no ratio
+    assert "d_body_pen_max_pct" not in rows[1]  # no body penetration in these rows
+
+
+def test_body_penetration_delta_when_both_rows_have_it() -> None:
+    kin = {**_row("kinematic (fit)", 0, 100.0, 2.0, 10.0), "body_pen_max_mm": 90.0}
+    phys = {**_row("physics (multi, bodyfit mesh)", 0, 50.0, 1.0, 12.0), "body_pen_max_mm": 30.0}
+    rows = with_deltas([kin, phys])
+    assert rows[1]["d_body_pen_max_pct"] == pytest.approx(-100.0 * 2 / 3)
+    assert rows[1]["d_pen_max_pct"] == pytest.approx(-50.0)
 
 
 def test_mean_over_seeds_averages_numbers_per_method() -> None:

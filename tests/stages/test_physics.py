@@ -71,6 +71,24 @@ def test_two_person_clip_ends_with_less_penetration() -> None:
     assert pen_raw[-1] < 0.5 * pen_in[-1]
 
 
+def test_body_penetration_measures_overlap_of_the_humanoids() -> None:
+    from pipeline.stages.physics import body_penetration_mm
+
+    close, apart = _facing_pair(0.18, n_frames=4), _facing_pair(1.2, n_frames=4)
+    pen_close = body_penetration_mm(close)
+    assert pen_close.shape == (4,) and pen_close.min() > 20.0
+    assert body_penetration_mm(apart).max() == 0.0
+    # Scored in the bodies built from another motion: the same overlap.
+    assert np.allclose(body_penetration_mm(close, body_keypoints=apart), pen_close, atol=2.0)
+    # The physics output reports it for its own motion, which separates the pair.
+    out = run(PhysicsInputs(close), FAST)
+    assert out.stats["body_penetration_max_mm"] < 0.5 * pen_close.max()
+    with pytest.raises(ValueError, match="two persons"):
+        body_penetration_mm(close, person_ids=[0])
+    with pytest.raises(ValueError, match=r"persons \[1\] are not in body_keypoints"):
+        body_penetration_mm(close, body_keypoints=close.replace(person_ids=np.array([0, 7])))
+
+
 def test_single_person_mode_and_config_checks() -> None:
     kp = _facing_pair(1.5, n_frames=6)
     out = run(PhysicsInputs(kp), PhysicsConfig(mode="single", window=5, commit=3, max_iter=1, n_alpha=2, residual_root="off"))
