@@ -256,12 +256,15 @@ def _parse_opt(items: list[str]) -> dict[str, Any]:
 def bench(
     name: Annotated[str, typer.Argument(help=f"One of: {', '.join(BENCHES)}.")],
     opt: Annotated[list[str], typer.Option(help="KEY=VALUE options passed to the benchmark.")] = [],  # noqa: B006
+    json_out: Annotated[Path | None, typer.Option("--json", help="Also write the table's rows to this JSON file.")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
 ) -> None:
     """Run a benchmark and print its table (speed and accuracy targets live here, not in tests)."""
     _setup_logging(verbose)
     if name not in BENCHES:
         _fail(f"unknown benchmark {name!r}; choose one of {list(BENCHES)}")
+    if json_out is not None and not json_out.parent.is_dir():
+        _fail(f"--json {json_out}: folder {json_out.parent} does not exist")
     try:
         mod = importlib.import_module(BENCHES[name])
     except ModuleNotFoundError as e:
@@ -272,12 +275,20 @@ def bench(
     except ValueError as e:
         _fail(str(e))
         return
+    if json_out is not None:
+        json_out.write_text(json.dumps(rows, indent=1, default=_json_default))
+        console.print(f"rows written to {json_out}")
     if hasattr(mod, "print_table"):
         mod.print_table(rows)
     else:
         from pipeline.cli.progress import rows_table
 
         console.print(rows_table(f"bench {name}", rows))
+
+
+def _json_default(o: Any) -> Any:
+    """numpy scalars and arrays as plain JSON values; anything else as its text."""
+    return o.tolist() if hasattr(o, "tolist") else str(o)
 
 
 @app.command()

@@ -42,3 +42,15 @@ def test_new_session_validates_paths(tmp_path: Path) -> None:
 def test_bench_unknown_name() -> None:
     r = runner.invoke(app, ["bench", "quantum"])
     assert r.exit_code == 2 and "unknown benchmark" in r.output
+
+
+def test_bench_writes_its_rows_as_json(tmp_path: Path) -> None:
+    out = tmp_path / "rows.json"
+    opts = ["--opt", "n_frames=20", "--opt", "scenarios=2 cams", "--opt", "baselines=false", "--opt", "repeats=1"]
+    r = runner.invoke(app, ["bench", "triangulation", *opts, "--json", str(out)])
+    assert r.exit_code == 0, r.output
+    rows = json.loads(out.read_text())
+    assert rows and all(isinstance(row, dict) for row in rows)
+    assert {row["scenario"] for row in rows} == {"2 cams"} and all(row["mpjpe_mm"] > 0 for row in rows)
+    r = runner.invoke(app, ["bench", "triangulation", *opts, "--json", str(tmp_path / "no" / "rows.json")])
+    assert r.exit_code == 2 and "does not exist" in r.output
