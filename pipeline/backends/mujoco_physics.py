@@ -26,6 +26,7 @@ from pipeline.backends.mujoco_reference import (
     separate_persons,
     separate_reference,
     servo_feedforward,
+    site_targets,
 )
 from pipeline.backends.mujoco_tracking import CostWeights, Reference, TrackingCost
 
@@ -48,6 +49,7 @@ __all__ = [
     "separate_persons",
     "separate_reference",
     "servo_feedforward",
+    "site_targets",
 ]
 
 log = logging.getLogger(__name__)

@@ -133,6 +133,15 @@ def reference_velocity(model: mujoco.MjModel, qpos: np.ndarray, fps: float) -> n
     return v
 
 
+def site_targets(scene: Scene, kp: Keypoints3D, person_rows: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """The scene's site targets from ``kp``: world positions (frames, persons, sites, 3),
+    zero where invalid, and weights (frames, persons, sites) = validity × confidence."""
+    jidx = [kp.joint_names.index(n) for n in scene.site_names]
+    weight = (kp.valid[:, person_rows][:, :, jidx] * np.clip(kp.confidence[:, person_rows][:, :, jidx], 0.0, 1.0)).astype(float)
+    targets = np.where(weight[..., None] > 0, kp.xyz_m[:, person_rows][:, :, jidx].astype(float), 0.0)
+    return targets, weight
+
+
 def build_reference(
     scene: Scene, kp: Keypoints3D, person_rows: list[int], plant: bool = True, separate: bool = True
 ) -> tuple[Reference, np.ndarray, np.ndarray]:
@@ -145,10 +154,7 @@ def build_reference(
     the optimiser then tracks a contact-free, reachable motion instead of fighting
     keypoints that pass through the other athlete (the synthetic clinches do)."""
     m, lay = scene.model, scene.layout
-    jidx = [kp.joint_names.index(n) for n in scene.site_names]
-    targets = kp.xyz_m[:, person_rows][:, :, jidx].astype(float)
-    weight = (kp.valid[:, person_rows][:, :, jidx] * np.clip(kp.confidence[:, person_rows][:, :, jidx], 0.0, 1.0)).astype(float)
-    targets = np.where(weight[..., None] > 0, targets, 0.0)
+    targets, weight = site_targets(scene, kp, person_rows)
     if plant:
         sole = np.array([sole_height_m(kp, r) or 0.0 for r in person_rows])
         targets, contact = plant_feet(targets, weight, scene.site_names, kp.fps, sole)

@@ -244,10 +244,7 @@ def body_penetration_mm(
         raise ValueError(f"body_penetration_mm: persons {lacking} are not in body_keypoints (ids {bids})")
     skels, _ = build_skeletons(bkp, [bids.index(p) for p in pids], bodyfit, cfg)
     scene = mp.build_scene(skels, pids, kp.fps, kp.joint_names, humanoid_config(cfg))
-    jidx = [kp.joint_names.index(n) for n in scene.site_names]
-    targets = kp.xyz_m[:, rows][:, :, jidx].astype(float)
-    weight = (kp.valid[:, rows][:, :, jidx] * np.clip(kp.confidence[:, rows][:, :, jidx], 0.0, 1.0)).astype(float)
-    targets = np.where(weight[..., None] > 0, targets, 0.0)
+    targets, weight = mp.site_targets(scene, kp, rows)
     qpos = mp.inverse_kinematics(scene, targets, weight)
     return 1000.0 * mp.inter_person_depths(scene, qpos)
 
@@ -351,7 +348,6 @@ def run(
         for k, v in sol.seconds.items():
             secs[k] = secs.get(k, 0.0) + v
     contacts, sites = mp.contacts_and_sites(scene, qpos, qvel)
-    body_pen = 1000.0 * mp.inter_person_depths(scene, qpos) if len(rows) > 1 else np.zeros(F)
     lay = scene.layout
     result = PhysicsResult(
         person_ids=np.asarray(pids, dtype=np.int64),
@@ -379,6 +375,8 @@ def run(
     compute_s = time.perf_counter() - t_start
     motion_s = max(F - 1, 1) / kp.fps
     inter = (contacts.person[:, 0] >= 0) & (contacts.person[:, 1] >= 0)
+    body_pen = np.zeros(F)  # per frame, deepest overlap between the persons' bodies (mm)
+    np.maximum.at(body_pen, contacts.frame[inter], 1000.0 * contacts.depth_m[inter])
     weight_n = np.array([p.mass_kg * 9.81 for p in lay.persons])
     stats: dict[str, Any] = {
         "mode": cfg.mode,
@@ -395,7 +393,7 @@ def run(
         "iterations": int(agg["iterations"]),
         "resets": int(agg["resets"]),
         "residual_force_mean_frac_bw": float(np.mean(np.linalg.norm(resid[..., :3], axis=-1) / weight_n[None])),
-        "mujoco_inter_penetration_max_mm": float(1000 * contacts.depth_m[inter].max(initial=0.0)),
+        "mujoco_inter_penetration_max_mm": float(body_pen.max(initial=0.0)),
         "body_penetration_max_mm": float(body_pen.max(initial=0.0)),
         "body_penetration_mean_mm": float(body_pen.mean()) if body_pen.size else 0.0,
         "compute_s": compute_s,
