@@ -263,6 +263,8 @@ def bench(
     _setup_logging(verbose)
     if name not in BENCHES:
         _fail(f"unknown benchmark {name!r}; choose one of {list(BENCHES)}")
+    if json_out is not None and json_out.is_dir():
+        _fail(f"--json {json_out}: is a folder; give a file name, e.g. {json_out / (name + '.json')}")
     if json_out is not None and not json_out.parent.is_dir():
         _fail(f"--json {json_out}: folder {json_out.parent} does not exist")
     try:
@@ -275,15 +277,18 @@ def bench(
     except ValueError as e:
         _fail(str(e))
         return
-    if json_out is not None:
-        json_out.write_text(json.dumps(rows, indent=1, default=_json_default))
-        console.print(f"rows written to {json_out}")
     if hasattr(mod, "print_table"):
         mod.print_table(rows)
     else:
         from pipeline.cli.progress import rows_table
 
         console.print(rows_table(f"bench {name}", rows))
+    if json_out is not None:  # after the table: a failed write must not hide the results
+        try:
+            json_out.write_text(json.dumps(rows, indent=1, default=_json_default))
+        except OSError as e:
+            _fail(f"--json {json_out}: could not write the rows ({e.strerror or e}); the table above has them")
+        console.print(f"rows written to {json_out}")
 
 
 def _json_default(o: Any) -> Any:

@@ -54,3 +54,5 @@ def test_bench_writes_its_rows_as_json(tmp_path: Path) -> None:
     assert {row["scenario"] for row in rows} == {"2 cams"} and all(row["mpjpe_mm"] > 0 for row in rows)
     r = runner.invoke(app, ["bench", "triangulation", *opts, "--json", str(tmp_path / "no" / "rows.json")])
     assert r.exit_code == 2 and "does not exist" in r.output
+    r = runner.invoke(app, ["bench", "triangulation", *opts, "--json", str(tmp_path)])
+    assert r.exit_code == 2 and "is a folder" in r.output
