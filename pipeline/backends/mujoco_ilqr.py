@@ -7,9 +7,8 @@ nominal trajectory's values).
 One iteration:
 1. *Linearise* along the nominal rollout: dynamics Jacobians A, B by finite
    differences (``mujoco.mjd_transitionFD``), every ``deriv_every`` steps with
-   linear interpolation in between, plus the effect of any torque the cost applies
-   as a feedback on the state (``Cost.wrench_feedback``, see
-   ``feedback_correction``); cost gradients/Gauss–Newton Hessians from the ``Cost``.
+   linear interpolation in between; cost gradients/Gauss–Newton Hessians from the
+   ``Cost``.
 2. *Backward pass*: Riccati recursion with Levenberg–Marquardt regularisation μ on
    Q_uu (raised ×``mu_up`` on a non-PD Q_uu or a failed line search, lowered on
    success).
@@ -46,11 +45,6 @@ class Cost(Protocol):
     ``data`` holds the state x_t after ``mj_forward`` (positions, contacts, site
     poses valid). ``u`` is the full ``ctrl`` vector (nu,). Derivatives are with
     respect to the tangent state (2·nv) and the full control (nu).
-
-    Optional: a cost whose ``prepare`` applies torques that depend on the state also
-    defines ``wrench_feedback(model, data, t) -> (bodies, dtau_dx) | None`` (the bodies
-    whose ``xfrc_applied[:, 3:6]`` it sets, and the (3·bodies, 2·nv) derivative of those
-    world torques), so the linearisation includes the feedback.
     """
 
     def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int) -> None:
@@ -64,46 +58,6 @@ class Cost(Protocol):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(lx (nx,), lu (nu,), lxx (nx, nx), luu (nu, nu)); lu/luu zero-size when u is None."""
         ...
-
-
-WRENCH_FD_EPS = 1e-3
-"""Finite-difference step (N·m) of an applied torque when linearising a state feedback."""
-
-
-def feedback_correction(model: mujoco.MjModel, data: mujoco.MjData, cost: object, t: int) -> np.ndarray | None:
-    """(nx, nx) term to add to one step's A when ``prepare`` applies a torque that feeds
-    back on the state (``cost.wrench_feedback`` gives the bodies and d torque / d x);
-    ``mjd_transitionFD`` sees ``xfrc_applied`` as a constant, so without this the
-    linearisation misses the feedback. The step's response to each torque component
-    comes from finite differences; ``data`` is left as it was. None: no feedback."""
-    fb = getattr(cost, "wrench_feedback", None)
-    got = fb(model, data, t) if fb is not None else None
-    if got is None:
-        return None
-    bodies, J = got
-    qpos, qvel = data.qpos.copy(), data.qvel.copy()
-    warm, act, tm = data.qacc_warmstart.copy(), data.act.copy(), data.time
-    xfrc = data.xfrc_applied.copy()
-
-    def step() -> tuple[np.ndarray, np.ndarray]:
-        _set_state(model, data, qpos, qvel, warm)
-        data.act[:] = act
-        data.time = tm
-        mujoco.mj_step(model, data)
-        return data.qpos.copy(), data.qvel.copy()
-
-    q1, v1 = step()
-    Bt = np.zeros((2 * model.nv, 3 * len(bodies)))
-    for j, b in enumerate(bodies):
-        for k in range(3):
-            data.xfrc_applied[b, 3 + k] += WRENCH_FD_EPS
-            q, v = step()
-            data.xfrc_applied[:] = xfrc
-            Bt[:, 3 * j + k] = state_diff(model, q, v, q1, v1) / WRENCH_FD_EPS
-    _set_state(model, data, qpos, qvel, warm)
-    data.act[:] = act
-    data.time = tm
-    return Bt @ J
 
 
 @dataclass(frozen=True)
@@ -309,16 +263,13 @@ def linearise(
                 _set_state(model, data, traj.qpos[t], traj.qvel[t], traj.warmstart[t])
                 cost.prepare(model, data, t0 + t)
                 mujoco.mjd_transitionFD(model, data, cfg.fd_eps, cfg.fd_centered, Ab, Bb, None, None)
-                fb = feedback_correction(model, data, cost, t0 + t)
-                A_t, B_t = (Ab.copy() if fb is None else Ab + fb), Bb.copy()
+                A_t, B_t = Ab.copy(), Bb.copy()
                 for _ in range(cfg.substeps - 1):
                     # Chain rule over substeps with the control held: x' = f(f(x, u), u).
                     mujoco.mj_step(model, data)
                     cost.prepare(model, data, t0 + t)
                     mujoco.mjd_transitionFD(model, data, cfg.fd_eps, cfg.fd_centered, Ab, Bb, None, None)
-                    fb = feedback_correction(model, data, cost, t0 + t)
-                    As = Ab if fb is None else Ab + fb
-                    A_t, B_t = As @ A_t, As @ B_t + Bb
+                    A_t, B_t = Ab @ A_t, Ab @ B_t + Bb
                 lin.A[t] = A_t
                 lin.B[t] = B_t[:, active]
                 lin.seconds_fd += tick() - c0

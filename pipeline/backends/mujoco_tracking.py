@@ -253,35 +253,6 @@ class TrackingCost:
             out[i] = tau if n <= self._tau_lim[i] else tau * (self._tau_lim[i] / n)
         return out
 
-    def wrench_feedback(
-        self, model: mujoco.MjModel, data: mujoco.MjData, t: int, eps: float = 1e-6
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The residual root torque is a feedback on the state, applied through
-        ``xfrc_applied``, which ``mjd_transitionFD`` holds fixed. For the solver's
-        linearisation: (root bodies (persons,), d torque / d x (3·persons, 2·nv)) at the
-        current state, by finite differences over each root's orientation and angular
-        velocity (the torque depends on nothing else); None when the residual is off."""
-        if not getattr(self, "residual_on", False) or not np.any(getattr(self, "_tau_lim", 0.0) > 0):
-            return None
-        nv = model.nv
-        qpos, qvel = data.qpos.copy(), data.qvel.copy()
-        tau0 = self.root_torque(qpos, qvel, t)
-        J = np.zeros((3 * len(self.layout.persons), 2 * nv))
-        dq = np.zeros(nv)
-        for i, p in enumerate(self.layout.persons):
-            rows = slice(3 * i, 3 * i + 3)
-            for k in range(3):
-                dof = p.qvel_adr + 3 + k
-                q2 = qpos.copy()
-                dq[:] = 0.0
-                dq[dof] = eps
-                mujoco.mj_integratePos(model, q2, dq, 1.0)
-                J[rows, dof] = (self.root_torque(q2, qvel, t)[i] - tau0[i]) / eps
-                v2 = qvel.copy()
-                v2[dof] += eps
-                J[rows, nv + dof] = (self.root_torque(qpos, v2, t)[i] - tau0[i]) / eps
-        return np.array([p.root_body for p in self.layout.persons], dtype=np.int64), J
-
     def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int) -> None:
         """Apply the residual root torque of the current state (no-op when off)."""
         if not getattr(self, "residual_on", False):

@@ -114,55 +114,6 @@ def test_adjoint_gradient_matches_finite_differences(substeps: int) -> None:
         assert g[t, j] == pytest.approx(fd, rel=1e-3, abs=1e-6)
 
 
-class FeedbackTipCost(TipCost):
-    """TipCost plus a torque on the upper arm that feeds back on the state (a PD on the
-    shoulder, applied through ``xfrc_applied`` like the residual root torque)."""
-
-    KP, KD = 8.0, 1.5
-
-    def torque_y(self, data: mujoco.MjData) -> float:
-        return -self.KP * float(data.qpos[0] - 0.2) - self.KD * float(data.qvel[0])
-
-    def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int) -> None:
-        data.xfrc_applied[1, 3:6] = (0.0, self.torque_y(data), 0.0)
-
-    def wrench_feedback(self, model: mujoco.MjModel, data: mujoco.MjData, t: int) -> tuple[np.ndarray, np.ndarray]:
-        J = np.zeros((3, 2 * model.nv))
-        J[1, 0], J[1, model.nv] = -self.KP, -self.KD
-        return np.array([1]), J
-
-
-class BlindFeedbackTipCost(FeedbackTipCost):
-    wrench_feedback = None  # type: ignore[assignment]
-
-
-@pytest.mark.parametrize("substeps", [1, 2])
-def test_gradient_includes_a_state_feedback_torque(substeps: int) -> None:
-    """``mjd_transitionFD`` holds ``xfrc_applied`` fixed; the linearisation adds the
-    feedback's effect, so the adjoint gradient still matches finite differences (and
-    would not without it)."""
-    model = mujoco.MjModel.from_xml_string(ARM_XML.replace('timestep="0.02"', f'timestep="{0.02 / substeps}"'))
-    data = mujoco.MjData(model)
-    cost = FeedbackTipCost(np.array([0.2, 0.0, 1.5]))
-    U = np.random.default_rng(1).uniform(-3, 3, size=(8, 2))
-    q0, v0 = np.array([0.3, -0.4]), np.array([0.5, 0.0])
-    cfg = ILQRConfig(deriv_every=1, fd_centered=True, substeps=substeps)
-    traj = rollout(model, data, cost, q0, v0, U, substeps=substeps)
-    g = trajectory_gradient(linearise(model, data, cost, traj, cfg, np.arange(2)))
-    blind = BlindFeedbackTipCost(cost.target)  # same dynamics, feedback not declared
-    g_blind = trajectory_gradient(linearise(model, data, blind, traj, cfg, np.arange(2)))
-    eps = 1e-5
-    worst_blind = 0.0
-    for t, j in [(0, 0), (2, 1), (4, 0), (6, 1)]:
-        up, um = U.copy(), U.copy()
-        up[t, j] += eps
-        um[t, j] -= eps
-        fd = (rollout(model, data, cost, q0, v0, up, substeps=substeps).total - rollout(model, data, cost, q0, v0, um, substeps=substeps).total) / (2 * eps)
-        assert g[t, j] == pytest.approx(fd, rel=1e-3, abs=1e-6)
-        worst_blind = max(worst_blind, abs(g_blind[t, j] - fd) / max(abs(fd), 1e-9))
-    assert worst_blind > 0.05
-
-
 TWO_CAPSULES_XML = """
 <mujoco>
   <option timestep="0.02" gravity="0 0 0" integrator="implicitfast"/>
