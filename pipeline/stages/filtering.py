@@ -70,6 +70,17 @@ class FilterConfig:
     """A single-view joint next to a located joint is placed on its ray at the bone's median
     length from it (the root nearer the smoothed estimate), with this std (0 disables)."""
 
+    def __post_init__(self) -> None:
+        positive = ("jerk_std", "meas_std_m", "outlier_dist_m", "ray_gate_px")
+        non_negative = ("bone_tolerance", "spline_max_gap_s", "kalman_max_gap_s", "ray_iterations", "bone_ray_std_m")
+        for name in positive + non_negative:
+            v = getattr(self, name)
+            ok = np.isfinite(v) and (v > 0 if name in positive else v >= 0)
+            if not ok:
+                raise ValueError(f"FilterConfig.{name} must be {'> 0' if name in positive else '>= 0'}, got {v!r}")
+        if self.smoother not in ("kalman", "none"):
+            raise ValueError(f"FilterConfig.smoother must be 'kalman' or 'none', got {self.smoother!r}")
+
 
 @dataclass(frozen=True)
 class RayObservations:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from pipeline.schema import COCO17, Keypoints3D
 from pipeline.stages.filtering import FilterConfig, bone_outliers, ca_model, rts_smooth_batch, run
@@ -128,3 +129,22 @@ def test_batch_smoother_matches_recursive_rts() -> None:
     for ax in range(3):
         ref = _rts_recursive(z[:, ax], r, fps, jerk)
         assert np.abs(batch[:, ax] - ref).max() < 1e-6
+
+
+@pytest.mark.parametrize(
+    "kw, msg",
+    [
+        ({"jerk_std": 0.0}, "jerk_std must be > 0"),
+        ({"jerk_std": -100.0}, "jerk_std must be > 0"),
+        ({"meas_std_m": float("nan")}, "meas_std_m must be > 0"),
+        ({"kalman_max_gap_s": -1.0}, "kalman_max_gap_s must be >= 0"),
+        ({"smoother": "spline"}, "smoother must be 'kalman' or 'none'"),
+    ],
+)
+def test_bad_filter_settings_are_refused(kw: dict, msg: str) -> None:
+    with pytest.raises(ValueError, match=msg):
+        FilterConfig(**kw)
+    from pipeline.stages.triangulate import TriangulateConfig
+
+    with pytest.raises(ValueError, match=msg):  # also when nested in the stage's config
+        TriangulateConfig(filter=kw)  # type: ignore[arg-type]
