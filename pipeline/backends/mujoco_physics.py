@@ -90,6 +90,9 @@ class BoutSolution:
     windows: int = 0
     windows_with_residual: int = 0
     resets: int = 0
+    kinematic_frames: int = 0
+    """Frames of windows that diverged even from the reference state: they hold the
+    (separated) reference instead of a simulation, and the next window restarts from it."""
     iterations: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
     cost_first: list[float] = field(default_factory=list)
@@ -202,7 +205,24 @@ def optimise_bout(
                 qvel0, warm = ref.qvel[s].copy(), None
                 res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [ref.ctrl[s : s + H]], cfg, servo, s, warm)
                 if res_or_none is None:
-                    raise ValueError(f"physics: the simulation diverges at frame {s} even from the reference state")
+                    # Keep the job alive: these frames hold the reference, reported as such.
+                    C = H if s + H >= F - 1 else min(cfg.commit, H)
+                    log.warning(
+                        "physics: the simulation diverges at frame %d even from the reference state; "
+                        "frames %d-%d keep the reference motion (stats: kinematic_frames)", s, s + 1, s + C
+                    )
+                    for t in range(1, C + 1):
+                        sol.qpos[s + t] = lift_off_floor(scene, separate_persons(scene, ref.qpos[s + t]))
+                    sol.qvel[s + 1 : s + C + 1] = ref.qvel[s + 1 : s + C + 1]
+                    sol.ctrl[s : s + C] = ref.ctrl[s : s + C]
+                    sol.kinematic_frames += C
+                    qpos0, qvel0, warm = sol.qpos[s + C].copy(), sol.qvel[s + C].copy(), None
+                    carry = np.zeros((0, m.nu))
+                    s += C
+                    sol.windows += 1
+                    if progress is not None:
+                        progress(sol.windows, n_windows, f"window {sol.windows}/{n_windows}: diverged, kept the reference")
+                    continue
             res = res_or_none
             if cfg.residual == "fallback" and resid.size and not use_res:
                 err = _mean_site_error(scene, res.traj.qpos, targets[s : s + H + 1], weight[s : s + H + 1])

@@ -319,7 +319,7 @@ def run(
     ctrl = np.zeros((F, scene.model.nu))
     force = np.zeros((F, scene.model.nu))
     resid = np.zeros((F, len(rows), 6))
-    agg: dict[str, float] = {"windows": 0, "windows_with_residual": 0, "iterations": 0, "resets": 0}
+    agg: dict[str, float] = {"windows": 0, "windows_with_residual": 0, "iterations": 0, "resets": 0, "kinematic_frames": 0}
     secs: dict[str, float] = {}
     done = [0]
     for g in groups:
@@ -345,6 +345,7 @@ def run(
         agg["windows_with_residual"] += sol.windows_with_residual
         agg["iterations"] += sol.iterations
         agg["resets"] += sol.resets
+        agg["kinematic_frames"] += sol.kinematic_frames
         for k, v in sol.seconds.items():
             secs[k] = secs.get(k, 0.0) + v
     contacts, sites = mp.contacts_and_sites(scene, qpos, qvel)
@@ -392,6 +393,7 @@ def run(
         "windows_with_residual": int(agg["windows_with_residual"]),
         "iterations": int(agg["iterations"]),
         "resets": int(agg["resets"]),
+        "kinematic_frames": int(agg["kinematic_frames"]),
         "residual_force_mean_frac_bw": float(np.mean(np.linalg.norm(resid[..., :3], axis=-1) / weight_n[None])),
         "mujoco_inter_penetration_max_mm": float(body_pen.max(initial=0.0)),
         "body_penetration_max_mm": float(body_pen.max(initial=0.0)),
