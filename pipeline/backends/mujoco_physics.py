@@ -40,7 +40,7 @@ __all__ = [
     "contact_inverse_dynamics",
     "contacts_and_sites",
     "count_windows",
-    "inter_person_depths",
+    "deepest_inter_person_mm",
     "inverse_kinematics",
     "lift_off_floor",
     "optimise_bout",
@@ -279,19 +279,12 @@ class FrameContacts:
     body_names: tuple[str, ...]
 
 
-def inter_person_depths(scene: Scene, qpos: np.ndarray) -> np.ndarray:
-    """(frames,) deepest overlap (m) between geoms of different persons in each
-    configuration of ``qpos`` (0 where the persons do not overlap)."""
-    from pipeline.backends.mujoco_tracking import collision_depths
-
-    m, lay = scene.model, scene.layout
-    d = mujoco.MjData(m)
-    out = np.zeros(qpos.shape[0])
-    for f in range(qpos.shape[0]):
-        d.qpos[:] = qpos[f]
-        mujoco.mj_fwdPosition(m, d)
-        depth, _ = collision_depths(m, d, lay.geom_person, False)
-        out[f] = depth.max(initial=0.0)
+def deepest_inter_person_mm(contacts: FrameContacts, n_frames: int) -> np.ndarray:
+    """(n_frames,) deepest overlap in mm between bodies of different persons in each
+    frame (0 where they do not overlap; ground contacts are ignored)."""
+    inter = (contacts.person[:, 0] >= 0) & (contacts.person[:, 1] >= 0)
+    out = np.zeros(n_frames)
+    np.maximum.at(out, contacts.frame[inter], 1000.0 * contacts.depth_m[inter])
     return out
 
 

@@ -246,7 +246,8 @@ def body_penetration_mm(
     scene = mp.build_scene(skels, pids, kp.fps, kp.joint_names, humanoid_config(cfg))
     targets, weight = mp.site_targets(scene, kp, rows)
     qpos = mp.inverse_kinematics(scene, targets, weight)
-    return 1000.0 * mp.inter_person_depths(scene, qpos)
+    contacts, _ = mp.contacts_and_sites(scene, qpos, np.zeros((qpos.shape[0], scene.model.nv)))
+    return mp.deepest_inter_person_mm(contacts, qpos.shape[0])
 
 
 def humanoid_config(cfg: PhysicsConfig) -> HumanoidConfig:
@@ -375,9 +376,7 @@ def run(
     )
     compute_s = time.perf_counter() - t_start
     motion_s = max(F - 1, 1) / kp.fps
-    inter = (contacts.person[:, 0] >= 0) & (contacts.person[:, 1] >= 0)
-    body_pen = np.zeros(F)  # per frame, deepest overlap between the persons' bodies (mm)
-    np.maximum.at(body_pen, contacts.frame[inter], 1000.0 * contacts.depth_m[inter])
+    body_pen = mp.deepest_inter_person_mm(contacts, F)
     weight_n = np.array([p.mass_kg * 9.81 for p in lay.persons])
     stats: dict[str, Any] = {
         "mode": cfg.mode,
