@@ -36,7 +36,7 @@ from pipeline.backends.anny_fit_init import (
 )
 from pipeline.backends.anny_fit_terms import MeshMoments, lever_arms, rest_tails, sole_vertices
 from pipeline.backends.anny_fk import SparseKeypoints, keypoints_from_bones
-from pipeline.backends.anny_model import AnnyBody, anny_body
+from pipeline.backends.anny_model import FIT_DTYPES, AnnyBody, anny_fit_body
 from pipeline.backends.anny_priors import joint_limit_penalty, joint_limit_tables, load_pose_prior
 from pipeline.backends.fit_common import ground_term, sequence_terms
 from pipeline.schema.joints import COCO17_FEET, FOOT_JOINTS
@@ -80,7 +80,7 @@ def fit_anny(
     for o in observations:
         if o.kp3d_m.shape != (nf, len(COCO17_FEET), 3) or o.uv_px.shape[:2] != (nv, nf):
             raise ValueError(f"fit_anny: inconsistent observation shapes {o.kp3d_m.shape} / {o.uv_px.shape}")
-    body = body or anny_body(cfg.rig)
+    body = anny_fit_body(cfg.rig, cfg.precision) if body is None else body.to(FIT_DTYPES[cfg.precision])
     threads = torch.get_num_threads()
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
@@ -107,8 +107,9 @@ def _fit(
     timings["shape_cpu_s"] = time.process_time() - c0
 
     t0, c0 = time.perf_counter(), time.process_time()
-    eye = torch.eye(3, dtype=torch.float64).expand(npers, nb, 3, 3)
-    rest_kp = keypoints_from_bones(body, eye, heads_p - heads_p[:, :1], heads_p, kpts_p).numpy()
+    dt = body.dtype
+    eye = torch.eye(3, dtype=dt).expand(npers, nb, 3, 3)
+    rest_kp = keypoints_from_bones(body, eye, heads_p - heads_p[:, :1], heads_p, kpts_p).double().numpy()
     R0 = np.zeros((npers, nf, 3, 3))
     T0 = np.zeros((npers, nf, 3))
     present = np.zeros((nf, npers), dtype=bool)
@@ -120,23 +121,24 @@ def _fit(
     n = npers * nf
     row_person = torch.arange(npers).repeat_interleave(nf)
     heads = heads_p[row_person]
-    R0_t = torch.as_tensor(R0.reshape(n, 3, 3))
-    kp3d = torch.as_tensor(np.stack([o.kp3d_m for o in observations]).reshape(n, nj, 3))
-    w3d = torch.as_tensor(np.stack([o.w3d for o in observations]).reshape(n, nj))
-    uv = torch.as_tensor(np.stack([o.uv_px for o in observations], axis=1).reshape(nv, n, nj, 2))
-    w2d = torch.as_tensor(np.stack([o.w2d for o in observations], axis=1).reshape(nv, n, nj))
-    P_t = torch.as_tensor(P_px, dtype=torch.float64)
+    R0_t = torch.as_tensor(R0.reshape(n, 3, 3), dtype=dt)
+    kp3d = torch.as_tensor(np.stack([o.kp3d_m for o in observations]).reshape(n, nj, 3), dtype=dt)
+    w3d = torch.as_tensor(np.stack([o.w3d for o in observations]).reshape(n, nj), dtype=dt)
+    uv = torch.as_tensor(np.stack([o.uv_px for o in observations], axis=1).reshape(nv, n, nj, 2), dtype=dt)
+    w2d = torch.as_tensor(np.stack([o.w2d for o in observations], axis=1).reshape(nv, n, nj), dtype=dt)
+    P_t = torch.as_tensor(P_px, dtype=dt)
 
-    tails = rest_tails(body, heads_p[0].numpy(), body.rest_vertices(coeffs[:1])[0].numpy())
+    heads_np = heads_p[0].double().numpy()
+    tails = rest_tails(body, heads_np, body.rest_vertices(coeffs[:1])[0].double().numpy())
     frames, lo, hi = (
-        torch.as_tensor(a) for a in joint_limit_tables(body.bone_names, heads_p[0].numpy(), tails)
+        torch.as_tensor(a, dtype=dt) for a in joint_limit_tables(body.bone_names, heads_np, tails)
     )
     lo, hi = torch.nan_to_num(lo, neginf=-1e6), torch.nan_to_num(hi, posinf=1e6)
     prior = load_pose_prior(cfg.pose_prior_path, body.bone_names, cfg.rig) if cfg.w_prior > 0 else None
     moments = MeshMoments(body, coeffs) if cfg.w_smooth > 0 else None
     sparse_kp = SparseKeypoints(body, heads_p, kpts_p)
     foot = torch.as_tensor(joint_idx(FOOT_JOINTS))
-    sole_idx = torch.as_tensor(sole_vertices(body, body.rest_vertices(coeffs[:1])[0].numpy()))
+    sole_idx = torch.as_tensor(sole_vertices(body, body.rest_vertices(coeffs[:1])[0].double().numpy()))
     sole_w = body.model.dense_vertex_bone_weights[sole_idx]
 
     def sole_points(c: torch.Tensor) -> torch.Tensor:
@@ -147,12 +149,12 @@ def _fit(
 
     soles = SparseKeypoints(body, heads_p, sole_points(coeffs), weights=sole_w)
 
-    root0 = torch.as_tensor(T0.reshape(n, 3)).clone()
+    root0 = torch.as_tensor(T0.reshape(n, 3), dtype=dt).clone()
     with torch.no_grad():
         pose0 = init_limbs(
             body,
             R0_t,
-            torch.zeros(n, nb - 1, 3, dtype=torch.float64),
+            torch.zeros(n, nb - 1, 3, dtype=dt),
             root0,
             heads,
             sparse_kp,
@@ -164,15 +166,15 @@ def _fit(
     # Optimised variables are scaled so that the loss has similar curvature along each
     # (L-BFGS starts from a scalar Hessian): a rotation is scaled by the lever arm of the
     # keypoints it moves, the per-person constants by the number of frames they explain.
-    lever = lever_arms(body, rest_kp[0] + heads_p[0, 0].numpy(), heads_p[0].numpy())
-    s_rot = torch.as_tensor(lever)[None, :, None]
+    lever = lever_arms(body, rest_kp[0] + heads_np[0], heads_np)
+    s_rot = torch.as_tensor(lever, dtype=dt)[None, :, None]
     s_root = float(np.sqrt(nj))
     s_const = float(np.sqrt(nf))
-    delta_s = torch.zeros(n, 3, dtype=torch.float64, requires_grad=True)
+    delta_s = torch.zeros(n, 3, dtype=dt, requires_grad=True)
     pose_s = (pose0 * s_rot[:, 1:]).requires_grad_(True)
     root_s = (root0 * s_root).requires_grad_(True)
     # per-person landmark offsets, rigid in the frame of each keypoint's dominant bone
-    offsets_s = torch.zeros(npers, nj, 3, dtype=torch.float64, requires_grad=cfg.calibrate_landmarks)
+    offsets_s = torch.zeros(npers, nj, 3, dtype=dt, requires_grad=cfg.calibrate_landmarks)
     dom = body.kp_w.argmax(dim=1)
     shape_s = (torch.logit(shape.clamp(1e-4, 1 - 1e-4)) * s_const * 0.3).requires_grad_(cfg.refine_shape)
     params = [delta_s, pose_s, root_s]
@@ -245,10 +247,10 @@ def _fit(
     logger.info("anny fit: %d persons x %d frames, loss %.4g %s, %s", npers, nf, float(total), terms, timings)
     return AnnyFitOutput(
         bone_names=body.bone_names,
-        shape=shape.numpy(),
-        pose_aa=full.reshape(npers, nf, nb, 3).permute(1, 0, 2, 3).numpy().copy(),
-        root_m=root.reshape(npers, nf, 3).permute(1, 0, 2).numpy().copy(),
-        keypoints_m=kp.reshape(npers, nf, nj, 3).permute(1, 0, 2, 3).numpy().copy(),
+        shape=shape.double().numpy(),
+        pose_aa=full.reshape(npers, nf, nb, 3).permute(1, 0, 2, 3).double().numpy().copy(),
+        root_m=root.reshape(npers, nf, 3).permute(1, 0, 2).double().numpy().copy(),
+        keypoints_m=kp.reshape(npers, nf, nj, 3).permute(1, 0, 2, 3).double().numpy().copy(),
         present=present,
         loss=per_person,
         timings_s=timings,
@@ -262,4 +264,4 @@ def _per_person_loss(
     """Mean confidence-weighted 3D distance (m) of each person's fit, a comparable summary."""
     d = (kp - kp3d).norm(dim=-1).reshape(npers, nf, -1)
     w = w3d.reshape(npers, nf, -1)
-    return ((d * w).sum(dim=(1, 2)) / w.sum(dim=(1, 2)).clamp(min=1e-9)).numpy()
+    return ((d * w).sum(dim=(1, 2)) / w.sum(dim=(1, 2)).clamp(min=1e-9)).double().numpy()

@@ -57,12 +57,12 @@ IK_DRIVERS: tuple[tuple[str, str], ...] = (
 def fit_shapes(body: AnnyBody, observations: list[PersonObservations], cfg: FitConfig) -> torch.Tensor:
     """(persons, 6) phenotypes minimising the limb-length differences to the observations."""
     lengths, weights = zip(*(_observed_lengths(o) for o in observations), strict=True)
-    L = torch.as_tensor(np.stack(lengths))
-    W = torch.as_tensor(np.stack(weights))
+    L = torch.as_tensor(np.stack(lengths), dtype=body.dtype)
+    W = torch.as_tensor(np.stack(weights), dtype=body.dtype)
     ia = torch.as_tensor(joint_idx(tuple(a for a, _ in SHAPE_LIMBS)))
     ib = torch.as_tensor(joint_idx(tuple(b for _, b in SHAPE_LIMBS)))
-    u = torch.zeros(len(observations), 6, dtype=torch.float64, requires_grad=True)
-    eye = torch.eye(3, dtype=torch.float64)
+    u = torch.zeros(len(observations), 6, dtype=body.dtype, requires_grad=True)
+    eye = torch.eye(3, dtype=body.dtype)
 
     def rest_keypoints(shape: torch.Tensor) -> torch.Tensor:
         coeffs = body.shape_coeffs(shape)

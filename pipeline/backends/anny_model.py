@@ -16,6 +16,8 @@ round-off) for any shape and pose, at a fraction of the cost of skinning the mes
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import logging
 import os
 from dataclasses import dataclass
@@ -109,6 +111,26 @@ class AnnyBody:
     def n_bones(self) -> int:
         return len(self.bone_names)
 
+    @property
+    def dtype(self) -> torch.dtype:
+        """Floating-point type of the model's tensors (``anny_body`` builds float64)."""
+        return self.heads0.dtype
+
+    def to(self, dtype: torch.dtype) -> AnnyBody:
+        """This body computing in ``dtype`` (a copy, the anny module included; ``self`` when
+        it already does)."""
+        if dtype == self.dtype:
+            return self
+        return dataclasses.replace(
+            self,
+            model=copy.deepcopy(self.model).to(dtype),
+            heads0=self.heads0.to(dtype),
+            heads_bs=self.heads_bs.to(dtype),
+            kp_w=self.kp_w.to(dtype),
+            kp_pts0=self.kp_pts0.to(dtype),
+            kp_pts_bs=self.kp_pts_bs.to(dtype),
+        )
+
     def shape_coeffs(self, shape: torch.Tensor) -> torch.Tensor:
         """(n, 6) phenotype values in [0, 1] -> (n, coeffs) blendshape coefficients (differentiable)."""
         m = self.model
@@ -196,3 +218,16 @@ def anny_body(rig: str = DEFAULT_RIG, topology: str = DEFAULT_TOPOLOGY) -> AnnyB
         faces=np.asarray(tri.cpu().numpy(), dtype=np.int64),
         vertex_bone=np.asarray(weights.argmax(dim=1).cpu().numpy(), dtype=np.int64),
     )
+
+
+FIT_DTYPES: dict[str, torch.dtype] = {"float32": torch.float32, "float64": torch.float64}
+"""``FitConfig.precision`` names."""
+
+
+@lru_cache(maxsize=4)
+def anny_fit_body(rig: str = DEFAULT_RIG, precision: str = "float32") -> AnnyBody:
+    """``anny_body(rig)`` computing in the fit's precision (cached; float32 takes ~50 MB
+    more for its copy of the anny module)."""
+    if precision not in FIT_DTYPES:
+        raise ValueError(f"fit precision must be one of {sorted(FIT_DTYPES)}, got {precision!r}")
+    return anny_body(rig, DEFAULT_TOPOLOGY).to(FIT_DTYPES[precision])

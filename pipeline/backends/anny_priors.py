@@ -146,6 +146,7 @@ class GMMPrior:
         self.rig = rig
         self.meta = dict(meta or {})
         self._bone_index: torch.Tensor | None = None
+        self._cast: dict[torch.dtype, tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = {}
 
     @classmethod
     def load(cls, path: str | Path) -> GMMPrior:
@@ -247,11 +248,18 @@ class GMMPrior:
         """(n, D) -> (n,) NLL per frame."""
         if x.shape[-1] != self.dim:
             raise ValueError(f"GMM prior expects poses of dimension {self.dim}, got {x.shape[-1]}")
-        x = x.to(self.means.dtype)
+        chol_cat, mu_chol, offset = self._factors(x.dtype)
         # z_k = L_k^T (x - mu_k) for every component in one matrix product
-        z = (x @ self._chol_cat).reshape(x.shape[0], *self._mu_chol.shape) - self._mu_chol[None]
-        e = 0.5 * z.square().sum(-1) + self.offset[None]
+        z = (x @ chol_cat).reshape(x.shape[0], *mu_chol.shape) - mu_chol[None]
+        e = 0.5 * z.square().sum(-1) + offset[None]
         return -torch.logsumexp(-e, dim=1)
+
+    def _factors(self, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The Cholesky stack, the means in its frame and the offsets in ``dtype`` (the fit
+        may run in float32; they are computed in float64 once, then cast and cached)."""
+        if dtype not in self._cast:
+            self._cast[dtype] = (self._chol_cat.to(dtype), self._mu_chol.to(dtype), self.offset.to(dtype))
+        return self._cast[dtype]
 
     def nll_numpy(self, x: np.ndarray) -> np.ndarray:
         """(n, D) numpy -> (n,) NLL per frame."""

@@ -137,6 +137,36 @@ def test_config_validation() -> None:
         FitConfig(w_2d=-1.0)
     with pytest.raises(ValueError, match="min_conf_2d"):
         FitConfig(min_conf_2d=1.5)
+    with pytest.raises(ValueError, match="precision"):
+        FitConfig(precision="float16")  # type: ignore[arg-type]
+
+
+def test_float32_fit_matches_float64(motion: AnnyMotion) -> None:
+    """The default float32 fit gives the float64 fit's joints and shape; outputs stay float64."""
+    import torch
+
+    rig = _rig(4)
+    kp3d, tracks, assoc = _inputs(rig, [motion], noise_3d_m=0.01, noise_px=2.0, seed=2)
+    res = {p: run(kp3d, tracks, assoc, rig, FitConfig(precision=p)) for p in ("float32", "float64")}
+    a, b = res["float32"], res["float64"]
+    assert a.keypoints3d.xyz_m.dtype == np.float64 and a.bodyfit.pose.dtype == np.float64
+    diff = np.linalg.norm(a.keypoints3d.xyz_m - b.keypoints3d.xyz_m, axis=-1)
+    assert diff.mean() < 5e-4 and diff.max() < 5e-3  # metres
+    # the skeletons agree (phenotypes themselves are weakly observed from 12 frames of keypoints)
+    centres = [
+        _joint_centres(r.bodyfit.shape[0], r.bodyfit.pose[:, 0], r.bodyfit.root_translation_m[:, 0]) for r in (a, b)
+    ]
+    assert np.linalg.norm(centres[0] - centres[1], axis=-1).mean() < 3e-3
+    err = {p: float(np.linalg.norm(r.keypoints3d.xyz_m[:, 0] - motion.keypoints_m, axis=-1).mean()) for p, r in res.items()}
+    assert abs(err["float32"] - err["float64"]) < 5e-4
+    # the float32 body is a converted copy: same keypoints to float32 rounding
+    body = anny_body()
+    b32 = body.to(torch.float32)
+    assert b32.dtype == torch.float32 and body.dtype == torch.float64 and body.to(torch.float64) is body
+    shape = torch.full((1, 6), 0.5)
+    k64 = body.rest_kp_points(body.shape_coeffs(shape.double()))
+    k32 = b32.rest_kp_points(b32.shape_coeffs(shape))
+    assert float((k64 - k32.double()).abs().max()) < 1e-5
 
 
 @pytest.mark.slow
