@@ -248,6 +248,8 @@ class GMMPrior:
         """(n, D) -> (n,) NLL per frame."""
         if x.shape[-1] != self.dim:
             raise ValueError(f"GMM prior expects poses of dimension {self.dim}, got {x.shape[-1]}")
+        if not x.is_floating_point():
+            x = x.to(self.means.dtype)
         chol_cat, mu_chol, offset = self._factors(x.dtype)
         # z_k = L_k^T (x - mu_k) for every component in one matrix product
         z = (x @ chol_cat).reshape(x.shape[0], *mu_chol.shape) - mu_chol[None]

@@ -117,6 +117,12 @@ def test_prior_gradient_is_finite(body, sample) -> None:  # noqa: ANN001
     nll.backward()
     assert torch.isfinite(nll) and torch.isfinite(full.grad).all()
     assert float(full.grad[3].norm()) > 0 and float(full.grad[3, 0].norm()) == 0.0  # root untouched
+    # the float32 fit gets the same NLL per frame, computed in float32
+    with torch.no_grad():
+        per64 = prior.per_frame(full[:, prior._bone_index].reshape(4, -1))
+        per32 = prior.per_frame(full.float()[:, prior._bone_index].reshape(4, -1))
+    assert per32.dtype == torch.float32
+    np.testing.assert_allclose(per32.double().numpy(), per64.numpy(), rtol=1e-4, atol=1e-3)
 
 
 def _projections(n_views: int) -> np.ndarray:
