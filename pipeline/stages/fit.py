@@ -135,9 +135,9 @@ def run(
     t_start = time.perf_counter()
     if cfg.body_model == "anny":
         from pipeline.backends.anny_fit import fit_anny
-        from pipeline.backends.anny_model import anny_body
+        from pipeline.backends.anny_model import anny_fit_body
 
-        body = anny_body(cfg.rig)
+        body = anny_fit_body(cfg.rig, cfg.precision)  # cached: no copy of the model per run
         bone_names, rig_name, shape0 = body.bone_names, cfg.rig, np.full(6, 0.5)
         fit_backend: Callable[..., Any] = functools.partial(fit_anny, cfg=cfg, body=body)
     else:  # SMPL / SMPL-X: ValueError naming the path when files or smplx are missing

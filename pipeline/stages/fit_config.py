@@ -119,8 +119,8 @@ class FitConfig:
 
     precision: Literal["float32", "float64"] = "float32"
     """anny only (SMPL fits stay float64): floating-point type of the fit's tensors. float32
-    is ~15-20 % faster (``cornerman bench fit``, 2 x 300 frames, 4 cameras: pose pass 23.4 s
-    against 28.4 s) with the same accuracy (synthetic bouts 0 and 1: MPJPE and acceleration
+    is ~20 % faster (``cornerman bench fit``, 2 x 300 frames, 4 cameras: pose pass 22.2 s
+    against 27.4 s) with the same accuracy (synthetic bouts 0 and 1: MPJPE and acceleration
     error within 0.05 mm and 0.05 mm/frame²); float64 reproduces fits made before float32
     became the default."""
 
