@@ -129,7 +129,8 @@ def _fit(
     P_t = torch.as_tensor(P_px, dtype=dt)
 
     heads_np = heads_p[0].double().numpy()
-    tails = rest_tails(body, heads_np, body.rest_vertices(coeffs[:1])[0].double().numpy())
+    rest_v = body.rest_vertices(coeffs[:1])[0].double().numpy()  # (verts, 3), first person
+    tails = rest_tails(body, heads_np, rest_v)
     frames, lo, hi = (
         torch.as_tensor(a, dtype=dt) for a in joint_limit_tables(body.bone_names, heads_np, tails)
     )
@@ -138,7 +139,7 @@ def _fit(
     moments = MeshMoments(body, coeffs) if cfg.w_smooth > 0 else None
     sparse_kp = SparseKeypoints(body, heads_p, kpts_p)
     foot = torch.as_tensor(joint_idx(FOOT_JOINTS))
-    sole_idx = torch.as_tensor(sole_vertices(body, body.rest_vertices(coeffs[:1])[0].double().numpy()))
+    sole_idx = torch.as_tensor(sole_vertices(body, rest_v))
     sole_w = body.model.dense_vertex_bone_weights[sole_idx]
 
     def sole_points(c: torch.Tensor) -> torch.Tensor:

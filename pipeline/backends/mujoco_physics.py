@@ -133,12 +133,17 @@ def _mean_site_error(scene: Scene, qpos: np.ndarray, targets: np.ndarray, weight
     return err / max(tot, 1e-9)
 
 
+def _committed_frames(start: int, horizon: int, n_frames: int, commit: int) -> int:
+    """Frames kept from a window of ``horizon`` steps at ``start``: ``commit``, or the whole
+    window when it reaches the last frame."""
+    return horizon if start + horizon >= n_frames - 1 else min(commit, horizon)
+
+
 def count_windows(n_frames: int, window: int, commit: int) -> int:
     """Number of receding-horizon windows over ``n_frames`` (the last one is kept whole)."""
     s, n = 0, 0
     while s < n_frames - 1:
-        H = min(window, n_frames - 1 - s)
-        s += H if s + H >= n_frames - 1 else min(commit, H)
+        s += _committed_frames(s, min(window, n_frames - 1 - s), n_frames, commit)
         n += 1
     return n
 
@@ -206,7 +211,7 @@ def optimise_bout(
                 res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [ref.ctrl[s : s + H]], cfg, servo, s, warm)
                 if res_or_none is None:
                     # Keep the job alive: these frames hold the reference, reported as such.
-                    C = H if s + H >= F - 1 else min(cfg.commit, H)
+                    C = _committed_frames(s, H, F, cfg.commit)
                     log.warning(
                         "physics: the simulation diverges at frame %d even from the reference state; "
                         "frames %d-%d keep the reference motion (stats: kinematic_frames)", s, s + 1, s + C
@@ -243,7 +248,7 @@ def optimise_bout(
             sol.windows_with_residual += int(use_res)
             sol.cost_first.append(res.cost_history[0])
             sol.cost_final.append(res.cost_history[-1])
-            C = H if s + H >= F - 1 else min(cfg.commit, H)
+            C = _committed_frames(s, H, F, cfg.commit)
             tr = res.traj
             sol.qpos[s : s + C + 1] = tr.qpos[: C + 1]
             sol.qvel[s : s + C + 1] = tr.qvel[: C + 1]
