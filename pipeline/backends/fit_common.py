@@ -156,10 +156,18 @@ def reprojection_term(
     return (w2d * rho).sum()
 
 
-def accel_term(kp: torch.Tensor, scale_m: float) -> torch.Tensor:
+def accel_term(kp: torch.Tensor, scale_m: float, whole_body: float = 1.0) -> torch.Tensor:
     """Sum of (pseudo-Huber, scale ``scale_m``; 0: plain) squared second differences of
-    keypoints ``kp`` (persons, frames, joints, 3) along frames (m^2 per frame^2)."""
-    a2 = (kp[:, 2:] - 2 * kp[:, 1:-1] + kp[:, :-2]).square().sum(-1)
+    keypoints ``kp`` (persons, frames, joints, 3) along frames (m^2 per frame^2).
+
+    Each keypoint's acceleration a_j is split into the person's whole-body acceleration
+    ā (the mean over keypoints) and the rest: a_j² → |a_j − ā|² + ``whole_body`` · |ā|².
+    Summed over keypoints, ``whole_body`` = 1 is the plain Σ|a_j|² (quadratic regime);
+    below 1, the whole body (footwork, weight shifts) may accelerate more freely than one
+    limb relative to it."""
+    a = kp[:, 2:] - 2 * kp[:, 1:-1] + kp[:, :-2]
+    mean = a.mean(dim=2, keepdim=True)
+    a2 = (a - mean).square().sum(-1) + whole_body * mean.square().sum(-1)
     if scale_m > 0:  # quadratic for jitter, linear for genuine fast motion (punches)
         d2 = scale_m**2
         a2 = 2 * d2 * (torch.sqrt(1 + a2 / d2) - 1)
@@ -208,7 +216,9 @@ def sequence_terms(
         A = torch.cat([G, t[..., None]], dim=-1).reshape(npers, nf, nb, 3, 4)
         out["smooth"] = cfg.w_smooth * (sm + mesh_velocity(A[:, 1:] - A[:, :-1]))
     if cfg.w_accel > 0 and nf > 2:  # pseudo-Huber: quadratic for jitter, linear for punches
-        out["accel"] = cfg.w_accel * accel_term(kp.reshape(npers, nf, kp.shape[-2], 3), cfg.accel_scale_m)
+        out["accel"] = cfg.w_accel * accel_term(
+            kp.reshape(npers, nf, kp.shape[-2], 3), cfg.accel_scale_m, cfg.accel_whole_body
+        )
     return out
 
 
