@@ -451,6 +451,8 @@ def rts_smooth_batch(info: np.ndarray, g: np.ndarray, fps: float, jerk_std: floa
     the recursive filter's initial covariance, so both give the same estimate).
 
     info: (frames, N, 3, 3); g: (frames, N, 3) = ``info_t z_t`` (plus linearised terms).
+    A trajectory without any information (a joint never measured, e.g. the feet with a
+    17-keypoint model) is not solved: its output is NaN.
     """
     F, N, _ = g.shape
     A, Q = ca_model(fps, jerk_std)
@@ -460,12 +462,13 @@ def rts_smooth_batch(info: np.ndarray, g: np.ndarray, fps: float, jerk_std: floa
     D3[1:] += Qi
     D3[0] += 1e-9 * Qi[0, 0] * np.eye(3)  # a very vague prior on the first state
     L3 = -Qi @ A  # block (t+1, t)
-    out = np.empty((F, N, 3))
+    out = np.full((F, N, 3), np.nan)
+    observed = np.abs(info).reshape(F, N, 9).max(axis=(0, 2)) > 0
     # Isotropic trajectories (info = lambda_t I) decouple per axis: a 3-state system with
     # bandwidth 5 and the three axes as right-hand sides.
     off = np.abs(info[..., [0, 0, 1], [1, 2, 2]]).max(axis=(0, 2))
     diag = np.diagonal(info, axis1=-2, axis2=-1)
-    iso = (off == 0) & (np.abs(diag - diag[..., :1]).max(axis=(0, 2)) == 0)
+    iso = (off == 0) & (np.abs(diag - diag[..., :1]).max(axis=(0, 2)) == 0) & observed
     if iso.any():
         ab3 = _banded(D3, L3, 3)
         for n in np.flatnonzero(iso):
@@ -473,22 +476,34 @@ def rts_smooth_batch(info: np.ndarray, g: np.ndarray, fps: float, jerk_std: floa
             abn[0, 0::3] += info[:, n, 0, 0]
             rhs = np.zeros((F, 3, 3))
             rhs[:, 0, :] = g[:, n]
-            sol = solveh_banded(abn, rhs.reshape(3 * F, 3), lower=True, check_finite=False)
+            sol = _solve_banded(abn, rhs.reshape(3 * F, 3))
             out[:, n] = sol[0::3]
-    if (~iso).any():
+    if (~iso & observed).any():
         I3 = np.eye(3)
         D9 = np.einsum("fab,ij->faibj", D3, I3).reshape(F, 9, 9)  # state order [p_xyz, v_xyz, a_xyz]
         ab9 = _banded(D9, np.kron(L3, I3), 9)
-        for n in np.flatnonzero(~iso):
+        for n in np.flatnonzero(~iso & observed):
             abn = ab9.copy()
             for i in range(3):
                 for j in range(i + 1):
                     abn[i - j, j::9] += info[:, n, i, j]
             rhs9 = np.zeros((F, 9))
             rhs9[:, :3] = g[:, n]
-            sol = solveh_banded(abn, rhs9.reshape(-1), lower=True, check_finite=False)
+            sol = _solve_banded(abn, rhs9.reshape(-1))
             out[:, n] = sol.reshape(F, 9)[:, :3]
     return out
+
+
+def _solve_banded(ab: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``solveh_banded`` of a smoother system; if rounding makes a weakly observed
+    trajectory's system (a few measurements in a long sequence) lose positive
+    definiteness, it is solved again with a ridge of 1e-12 of its largest diagonal entry."""
+    try:
+        return solveh_banded(ab, rhs, lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        ridged = ab.copy()
+        ridged[0] += 1e-12 * np.abs(ab[0]).max()
+        return solveh_banded(ridged, rhs, lower=True, check_finite=False)
 
 
 def _banded(D: np.ndarray, L: np.ndarray, b: int) -> np.ndarray:

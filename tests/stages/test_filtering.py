@@ -131,6 +131,26 @@ def test_batch_smoother_matches_recursive_rts() -> None:
         assert np.abs(batch[:, ax] - ref).max() < 1e-6
 
 
+@pytest.mark.parametrize("fps", [30.0, 50.0, 120.0])
+def test_a_joint_never_measured_does_not_break_the_others(fps: float) -> None:
+    """At 30 and 120 fps the smoother's system of a trajectory with no measurement at all
+    is numerically singular; it used to stop the whole triangulation (LinAlgError)."""
+    F = 100
+    X = _traj(F, fps)
+    valid = np.ones(X.shape[:3], bool)
+    valid[:, 0, 15:] = False  # the ankles are never seen
+    out = run(_kp(X, valid).replace(fps=fps), FilterConfig(ray_iterations=0))
+    assert not out.valid[:, 0, 15:].any()
+    assert out.valid[:, 0, :15].all()
+    assert np.abs(out.xyz_m[:, 0, :15] - X[:, 0, :15]).max() < 0.01
+    info = np.zeros((F, 2, 3, 3))
+    info[:, 1] = 1e4 * np.eye(3)
+    g = np.einsum("fnij,fnj->fni", info, X[:, 0, :2])
+    both = rts_smooth_batch(info, g, fps, 100.0)
+    assert np.isnan(both[:, 0]).all()
+    assert np.allclose(both[:, 1], rts_smooth_batch(info[:, 1:], g[:, 1:], fps, 100.0)[:, 0])
+
+
 @pytest.mark.parametrize(
     "kw, msg",
     [
