@@ -114,11 +114,10 @@ def session_meta(session_dir: Path) -> dict[str, Any]:
     cams = list(cfg.videos or cfg.keypoints)
     fps = float(cfg.fps)
     try:
-        from pipeline.io.calibration import load_calibration
+        from pipeline.io.session_rig import session_rig
 
-        calib = Path(cfg.calibration)
-        rig = load_calibration(calib if calib.is_absolute() else session_dir / calib)
-        cams, fps = list(rig.names), float(cfg.fps or rig.fps)
+        rig = session_rig(session_dir, cfg)
+        cams, fps = list(rig.names), float(rig.fps)
     except (ValueError, OSError, KeyError, TypeError) as e:
         log.warning("%s: calibration not readable yet: %s", session_dir, e)
     return {"name": cfg.name, "n_cameras": len(cams), "cameras": cams, "fps": fps, "athletes": list(cfg.athletes),

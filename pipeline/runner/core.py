@@ -71,6 +71,8 @@ def fingerprint(ctx: StageContext, spec: StageSpec, cfg: Any, enabled: list[str]
         except ValueError:
             rel = str(p)
         inputs[f"file:{rel}"] = hashes.sha256(p)
+    if spec.uses_rig_fps:
+        inputs["rig_fps"] = repr(float(ctx.rig.fps))
     if spec.consumes_annotations:
         inputs["annotations"] = annotations_hash(annotations_for(ctx.all_annotations, spec.name))
     return inputs

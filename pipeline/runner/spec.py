@@ -8,7 +8,6 @@ does all file I/O, hashing and manifest bookkeeping.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -64,13 +63,10 @@ class StageContext:
 
     @cached_property
     def rig(self) -> CameraRig:
-        """The session's calibration (fps overridden by session.fps when set)."""
-        from pipeline.io.calibration import load_calibration
+        """The session's calibration at the session's frame rate (``pipeline.io.session_rig``)."""
+        from pipeline.io.session_rig import session_rig
 
-        rig = load_calibration(self.resolve(self.session.calibration))
-        if self.session.fps > 0 and self.session.fps != rig.fps:
-            rig = dataclasses.replace(rig, fps=float(self.session.fps))
-        return rig
+        return session_rig(self.session_dir, self.session)
 
     @cached_property
     def all_annotations(self) -> list[Annotation]:
@@ -104,6 +100,8 @@ class StageSpec:
         optional_deps: upstream stages used when enabled and present.
         version: bump when the stage's code changes its output.
         consumes_annotations: whether annotation edits are part of its inputs.
+        uses_rig_fps: whether the session's resolved frame rate is part of its inputs (it
+            can change without any file changing: ``pipeline.io.session_rig``).
     """
 
     name: str
@@ -114,4 +112,5 @@ class StageSpec:
     optional_deps: tuple[str, ...] = ()
     version: str = "1"
     consumes_annotations: bool = False
+    uses_rig_fps: bool = False
     description: str = ""

@@ -51,6 +51,18 @@ def test_config_change_and_input_change_make_stale(tiny_session: Path) -> None:
     assert stage_status(tiny_session)["detect2d"] == "stale"
 
 
+def test_a_new_frame_rate_makes_the_tracking_stale(tiny_session: Path) -> None:
+    """The resolved frame rate is an input of track (it can change with no file changing)."""
+    run(tiny_session)
+    cfg = json.loads((tiny_session / "session.json").read_text())
+    cfg["fps"] = 25.0
+    (tiny_session / "session.json").write_text(json.dumps(cfg))
+    assert stage_status(tiny_session) == {"detect2d": "fresh", "track": "stale"}
+    reports = run(tiny_session)
+    assert [(r.stage, r.action) for r in reports] == [("detect2d", "skipped"), ("track", "ran")]
+    assert ArtifactStore(tiny_session).manifest("track").inputs["rig_fps"] == "25.0"
+
+
 def test_from_stage_forces_rerun(tiny_session: Path) -> None:
     run(tiny_session)
     reports = run(tiny_session, from_stage="track")

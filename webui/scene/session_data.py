@@ -6,7 +6,6 @@ Any stage may be missing (not run yet, failed, or being re-run): the matching fi
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 from dataclasses import dataclass, field
@@ -16,7 +15,7 @@ from typing import Any, Literal
 import numpy as np
 
 from pipeline.artifacts import ArtifactStore
-from pipeline.io.calibration import load_calibration
+from pipeline.io.session_rig import session_rig
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
@@ -146,10 +145,7 @@ def load_session_data(session_dir: str | Path) -> SessionData:
     """Load every artifact the viewer can show; ``ValueError`` if the session itself is unreadable."""
     session_dir = Path(session_dir)
     config = SessionConfig.load(session_dir)
-    calib = Path(config.calibration)
-    rig = load_calibration(calib if calib.is_absolute() else session_dir / calib)
-    if config.fps > 0 and config.fps != rig.fps:
-        rig = dataclasses.replace(rig, fps=float(config.fps))
+    rig = session_rig(session_dir, config)
     store = ArtifactStore(session_dir)
     tracks = _load_opt(store, "track", "tracks", Tracks2D)
     association = _load_opt(store, "associate", "association", Association)

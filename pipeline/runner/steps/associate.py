@@ -32,5 +32,6 @@ SPEC = StageSpec(
     config_cls=AssociateConfig,
     execute=_execute,
     consumes_annotations=True,
+    uses_rig_fps=True,
     description="cross-view identity association (epipolar + multi-view 3D tracking)",
 )

@@ -110,6 +110,7 @@ SPEC = StageSpec(
     config_cls=TrackStepConfig,
     execute=_execute,
     consumes_annotations=True,
+    uses_rig_fps=True,
     version="2",
     description="per-view tracking with persistent ids, camera time offsets (+ human track edits)",
 )

@@ -24,5 +24,6 @@ SPEC = StageSpec(
     deps=("associate", "track"),
     config_cls=TriangulateConfig,
     execute=_execute,
+    uses_rig_fps=True,
     description="weighted triangulation + spline/Kalman filtering and bone-length checks",
 )
