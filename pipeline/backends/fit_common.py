@@ -156,18 +156,32 @@ def reprojection_term(
     return (w2d * rho).sum()
 
 
+FOOT_KEYPOINTS: tuple[int, ...] = tuple(
+    i for i, n in enumerate(COCO17_FEET) if n.endswith(("_ankle", "_heel", "_toe"))
+)
+"""Ankles, heels and toes (indices into COCO-17 + feet, whose first 17 are COCO-17)."""
+
+
 def accel_term(kp: torch.Tensor, scale_m: float, whole_body: float = 1.0) -> torch.Tensor:
     """Sum of (pseudo-Huber, scale ``scale_m``; 0: plain) squared second differences of
     keypoints ``kp`` (persons, frames, joints, 3) along frames (m^2 per frame^2).
 
-    Each keypoint's acceleration a_j is split into the person's whole-body acceleration
-    ā (the mean over keypoints) and the rest: a_j² → |a_j − ā|² + ``whole_body`` · |ā|².
-    Summed over keypoints, ``whole_body`` = 1 is the plain Σ|a_j|² (quadratic regime);
-    below 1, the whole body (footwork, weight shifts) may accelerate more freely than one
-    limb relative to it."""
+    The keypoints above the feet have their acceleration a_j split into the person's
+    whole-body acceleration ā (their mean) and the rest: |a_j|² → |a_j − ā|² +
+    ``whole_body`` · |ā|². Below 1, the body (footwork, weight shifts) may accelerate more
+    freely than one limb relative to it. The feet (``FOOT_KEYPOINTS``) keep their plain
+    squared acceleration, so that a planted foot stays still while the body shifts its weight."""
     a = kp[:, 2:] - 2 * kp[:, 1:-1] + kp[:, :-2]
-    mean = a.mean(dim=2, keepdim=True)
-    a2 = (a - mean).square().sum(-1) + whole_body * mean.square().sum(-1)
+    nj = a.shape[2]
+    feet = [i for i in FOOT_KEYPOINTS if i < nj]
+    body = [i for i in range(nj) if i not in feet]
+    if body:
+        ab = a[:, :, body]
+        mean = ab.mean(dim=2, keepdim=True)
+        split = (ab - mean).square().sum(-1) + whole_body * mean.square().sum(-1)
+        a2 = torch.cat([split, a[:, :, feet].square().sum(-1)], dim=2)
+    else:
+        a2 = a.square().sum(-1)
     if scale_m > 0:  # quadratic for jitter, linear for genuine fast motion (punches)
         d2 = scale_m**2
         a2 = 2 * d2 * (torch.sqrt(1 + a2 / d2) - 1)

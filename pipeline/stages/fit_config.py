@@ -52,14 +52,16 @@ class FitConfig:
     punches are penalised less). 0 = plain squared penalty."""
 
     accel_whole_body: float = 0.3
-    """Weight, relative to ``w_accel``, of the whole-body part of the acceleration penalty
-    (the mean acceleration of a person's keypoints); each keypoint's acceleration relative
-    to it keeps the full weight. 1 = the plain per-keypoint penalty. Below 1, footwork and
-    weight shifts, which move every keypoint together, are smoothed less than a single
-    limb's jitter. Measured against 1 on the synthetic bouts (300 frames, 4 cameras, seeds
-    0 / 1 / 2): MPJPE 10.15 → 9.58, 10.91 → 10.16, 11.04 → 10.21 mm and acceleration error
-    3.96 → 3.94, 3.92 → 3.87, 3.94 → 3.86 mm/f²; 2 cameras (seed 0): 23.5 → 22.7 mm,
-    5.08 → 4.94 mm/f². 0.2 and 0.5 are within 0.2 mm of 0.3."""
+    """Weight, relative to ``w_accel``, of the whole-body part of the acceleration penalty:
+    above the feet, each keypoint's acceleration is split into the mean acceleration of
+    those keypoints (footwork, weight shifts) and the keypoint's own relative to it, which
+    keeps the full weight; ankles, heels and toes keep their plain penalty, so planted feet
+    stay still (``fit_common.accel_term``). 1 is the plain penalty in its quadratic regime.
+    Against the plain per-keypoint penalty on the synthetic bouts (4 cameras, seeds 0 / 1 / 2,
+    300 frames), MPJPE 10.15 → 9.59, 10.91 → 10.18, 11.04 → 10.24 mm and acceleration error
+    3.96 → 3.86, 3.92 → 3.80, 3.94 → 3.78 mm/f²; 2 cameras (seed 0) 23.5 → 22.9 mm; foot
+    skating unchanged (150 frames, seeds 0-3: 1.64 → 1.63 mm/frame). 0.2 and 0.5 are within
+    0.2 mm; splitting the feet too raised their skating by 20-40 %."""
 
     calibrate_landmarks: bool = True
     """Estimate one constant offset per person and keypoint, rigid in the keypoint's bone

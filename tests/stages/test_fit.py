@@ -146,28 +146,40 @@ def test_config_validation() -> None:
 def test_accel_term_splits_whole_body_and_relative_acceleration() -> None:
     import torch
 
-    from pipeline.backends.fit_common import accel_term
+    from pipeline.backends.fit_common import FOOT_KEYPOINTS, accel_term
 
-    t = torch.arange(6, dtype=torch.float64)[:, None, None]
-    rng = np.random.default_rng(0)
-    base = torch.tensor(rng.normal(size=(1, 1, 5, 3)))
-    # Every keypoint accelerates by 2 cm per frame² along x: a whole-body acceleration.
-    shift = torch.zeros(1, 6, 5, 3, dtype=torch.float64)
-    shift[..., 0] = 0.01 * t[None, :, :, 0] ** 2
-    whole = base + shift
-    plain = 4 * 5 * 0.02**2  # 4 second differences x 5 keypoints x |a|^2
-    assert float(accel_term(whole, 0.0, 1.0)) == pytest.approx(plain)
-    assert float(accel_term(whole, 0.0, 0.3)) == pytest.approx(0.3 * plain)
-    assert float(accel_term(whole, 0.0, 0.0)) == pytest.approx(0.0, abs=1e-12)
-    # One keypoint accelerating alone: the split weights its relative part fully.
-    one = base.repeat(1, 6, 1, 1).clone()
-    one[0, :, 2, 1] += 0.01 * t[:, 0, 0] ** 2
-    a = np.zeros((5, 3))
-    a[2, 1] = 0.02
-    rel = ((a - a.mean(0)) ** 2).sum() * 4
-    mean2 = (a.mean(0) ** 2).sum() * 5 * 4
-    assert float(accel_term(one, 0.0, 0.3)) == pytest.approx(rel + 0.3 * mean2)
-    assert float(accel_term(one, 0.0, 1.0)) == pytest.approx(4 * 0.02**2)
+    assert [COCO17_FEET[i] for i in FOOT_KEYPOINTS] == [
+        "left_ankle", "right_ankle", "left_big_toe", "left_small_toe", "left_heel",
+        "right_big_toe", "right_small_toe", "right_heel",
+    ]  # fmt: skip
+    nj, nb = len(COCO17_FEET), len(COCO17_FEET) - len(FOOT_KEYPOINTS)
+    t = torch.arange(6, dtype=torch.float64)
+    base = torch.tensor(np.random.default_rng(0).normal(size=(1, 1, nj, 3))).repeat(1, 6, 1, 1)
+
+    def moved(joints: list[int], axis: int) -> torch.Tensor:
+        """``joints`` accelerate by 2 cm per frame² along ``axis`` (4 second differences)."""
+        x = base.clone()
+        x[0, :, joints, axis] += 0.01 * t[:, None] ** 2
+        return x
+
+    a2 = 0.02**2
+    # The whole body accelerating: the part above the feet costs whole_body x its plain
+    # sum, the feet their plain sum (a planted foot is not part of a weight shift).
+    whole = moved(list(range(nj)), 0)
+    for lam in (1.0, 0.3, 0.0):
+        assert float(accel_term(whole, 0.0, lam)) == pytest.approx(4 * a2 * (lam * nb + len(FOOT_KEYPOINTS)))
+    # One wrist alone: its acceleration relative to the body mean in full, the mean's share
+    # weighted; whole_body = 1 gives the plain cost.
+    wrist = COCO17_FEET.index("left_wrist")
+    a = np.zeros((nb, 3))
+    a[wrist, 1] = 0.02
+    rel, mean2 = ((a - a.mean(0)) ** 2).sum(), nb * (a.mean(0) ** 2).sum()
+    assert float(accel_term(moved([wrist], 1), 0.0, 0.3)) == pytest.approx(4 * (rel + 0.3 * mean2))
+    assert float(accel_term(moved([wrist], 1), 0.0, 1.0)) == pytest.approx(4 * a2)
+    # A heel alone: plain, whatever whole_body.
+    heel = COCO17_FEET.index("left_heel")
+    for lam in (1.0, 0.3):
+        assert float(accel_term(moved([heel], 2), 0.0, lam)) == pytest.approx(4 * a2)
 
 
 def test_float32_fit_matches_float64(motion: AnnyMotion) -> None:
