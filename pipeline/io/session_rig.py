@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import tomllib
+from functools import lru_cache
 from pathlib import Path
 
 from pipeline.io.calibration import calibration_format, load_calibration
@@ -38,19 +39,27 @@ def stored_fps(path: Path) -> float | None:
     return float(fps) if isinstance(fps, int | float) and not isinstance(fps, bool) and fps > 0 else None
 
 
+@lru_cache(maxsize=256)
+def _video_fps(path: str, mtime_ns: int, size: int) -> float:
+    """A video's reported rate; cached per file version, since every stage's fingerprint
+    resolves the rig (opening a video and decoding a frame takes ~60 ms)."""
+    from pipeline.io.video import video_info
+
+    return video_info(Path(path)).fps
+
+
 def videos_fps(session_dir: Path, cfg: SessionConfig) -> float | None:
     """The frame rate all of a video session's videos report (within 1 %), or None."""
     if cfg.source != "video" or not cfg.videos:
         return None
-    from pipeline.io.video import video_info
-
     rates = []
     for p in cfg.videos.values():
         path = Path(p) if Path(p).is_absolute() else session_dir / p
         try:
-            rates.append(video_info(path).fps)
-        except ValueError:
-            return None  # detect2d reports the unreadable video
+            st = path.stat()
+            rates.append(_video_fps(str(path), st.st_mtime_ns, st.st_size))
+        except (OSError, ValueError):
+            return None  # detect2d reports the missing or unreadable video
     if not rates or min(rates) <= 0 or max(rates) - min(rates) > 0.01 * max(rates):
         return None
     return float(sorted(rates)[len(rates) // 2])
