@@ -16,6 +16,12 @@ physics collides, with ground truth and the kinematic input posed in them by
 inverse kinematics. The two disagree: the synthetic ground truth, dressed in the
 fitted bodies, overlaps by several centimetres in clinches, so a motion that is
 penetration-free in the athletes' bodies cannot also stay at ground truth there.
+
+``needed F`` / ``needed τ`` (``pipeline.stages.physics_dynamics``) tell how physically
+consistent each row's motion is: the mean root force (body weights) and torque (N·m)
+it needs beyond its foot contacts, in the same fitted bodies. The synthetic ground
+truth is choreographed, not simulated, so it needs some itself; a simulation can
+follow a motion only as far as its residual supplies that.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import BodyFit
 from pipeline.stages.physics import PhysicsConfig, PhysicsInputs, body_penetration_mm
 from pipeline.stages.physics import run as run_physics
+from pipeline.stages.physics_dynamics import needed_residual
 
 
 def _kinematic_input(bout: Any, source: str, seed: int) -> tuple[Keypoints3D, BodyFit | None]:
@@ -134,7 +141,12 @@ def _run_seed(
         # Overlap of the athletes' own bodies (the humanoids the physics collides),
         # posed onto ``motion``; ground truth is scored in the same bodies.
         pen = body_penetration_mm(motion, bodyfit, PhysicsConfig(**physics_overrides), pids, body_keypoints=kin)
-        return {"body_pen_max_mm": float(pen.max()), "body_pen_mean_mm": float(pen.mean())}
+        return {"body_pen_max_mm": float(pen.max()), "body_pen_mean_mm": float(pen.mean()), **needed(motion)}
+
+    def needed(motion: Keypoints3D) -> dict[str, float]:
+        # The root wrench the motion needs beyond its foot contacts, in the same bodies.
+        s = needed_residual(motion, bodyfit, PhysicsConfig(**physics_overrides), pids, body_keypoints=kin).summary()
+        return {k: s[k] for k in ("needed_force_frac_bw", "needed_torque_nm")}
 
     rows: list[dict] = [
         {"method": "ground truth", "seed": seed, **physics_metrics(gt, gt, bout.foot_contact), **body_pen(gt)},
@@ -163,6 +175,7 @@ def _run_seed(
                 "mujoco_inter_pen_max_mm": st["mujoco_inter_penetration_max_mm"],
                 "body_pen_max_mm": st["body_penetration_max_mm"],
                 "body_pen_mean_mm": st["body_penetration_mean_mm"],
+                **needed(out.keypoints),
             }
         )
     return rows
@@ -192,6 +205,8 @@ COLUMNS: tuple[tuple[str, str], ...] = (
     ("rollouts_s", "rollout s"),
     ("residual_windows", "residual win"),
     ("residual_mean_frac_bw", "residual bw"),
+    ("needed_force_frac_bw", "needed F bw"),
+    ("needed_torque_nm", "needed τ N·m"),
 )
 
 
@@ -209,7 +224,8 @@ def print_table(rows: list[dict]) -> None:
         cells = []
         for key, _ in COLUMNS:
             v = r.get(key, "")
-            cells.append(f"{v:.1f}" if isinstance(v, float) else str(v))
+            fmt = "{:.2f}" if key.endswith("frac_bw") else "{:.1f}"
+            cells.append(fmt.format(v) if isinstance(v, float) else str(v))
         table.add_row(*cells)
     # Wide enough for every column also when the output is a file or a pipe (80 columns).
     Console(width=max(Console().width, 260)).print(table)

@@ -209,6 +209,42 @@ def build_skeletons(
     return [skeleton_from_keypoints(kp, r) for r in rows], "keypoints"
 
 
+def posed_humanoids(
+    kp: Keypoints3D,
+    bodyfit: BodyFit | None = None,
+    cfg: PhysicsConfig = PhysicsConfig(),
+    person_ids: list[int] | None = None,
+    body_keypoints: Keypoints3D | None = None,
+    min_persons: int = 1,
+    what: str = "posed_humanoids",
+) -> tuple[Any, np.ndarray]:
+    """The humanoids this stage builds (from ``bodyfit``, with ``cfg``'s geometry, sized
+    from ``body_keypoints``, default ``kp``), posed by inverse kinematics onto ``kp``'s
+    joints: no separation, no floor lift, no simulation. Returns ``(scene, qpos)``.
+
+    ``person_ids`` restricts the persons (default: all with motion). Raises
+    ``ValueError`` (prefixed with ``what``) when fewer than ``min_persons`` remain or
+    one of them is not in ``body_keypoints``."""
+    from pipeline.backends import mujoco_physics as mp
+
+    rows = _select_persons(kp)
+    if person_ids is not None:
+        rows = [r for r in rows if int(kp.person_ids[r]) in {int(p) for p in person_ids}]
+    if len(rows) < min_persons:
+        need = "two persons" if min_persons == 2 else f"{min_persons} person(s)"
+        raise ValueError(f"{what} needs {need} with motion, got {len(rows)}")
+    pids = [int(kp.person_ids[r]) for r in rows]
+    bkp = kp if body_keypoints is None else body_keypoints
+    bids = [int(i) for i in bkp.person_ids]
+    lacking = [p for p in pids if p not in bids]
+    if lacking:
+        raise ValueError(f"{what}: persons {lacking} are not in body_keypoints (ids {bids})")
+    skels, _ = build_skeletons(bkp, [bids.index(p) for p in pids], bodyfit, cfg)
+    scene = mp.build_scene(skels, pids, kp.fps, kp.joint_names, humanoid_config(cfg))
+    targets, weight = mp.site_targets(scene, kp, rows)
+    return scene, mp.inverse_kinematics(scene, targets, weight)
+
+
 def body_penetration_mm(
     kp: Keypoints3D,
     bodyfit: BodyFit | None = None,
@@ -231,21 +267,7 @@ def body_penetration_mm(
     """
     from pipeline.backends import mujoco_physics as mp
 
-    rows = _select_persons(kp)
-    if person_ids is not None:
-        rows = [r for r in rows if int(kp.person_ids[r]) in {int(p) for p in person_ids}]
-    if len(rows) < 2:
-        raise ValueError(f"body_penetration_mm needs two persons with motion, got {len(rows)}")
-    pids = [int(kp.person_ids[r]) for r in rows]
-    bkp = kp if body_keypoints is None else body_keypoints
-    bids = [int(i) for i in bkp.person_ids]
-    lacking = [p for p in pids if p not in bids]
-    if lacking:
-        raise ValueError(f"body_penetration_mm: persons {lacking} are not in body_keypoints (ids {bids})")
-    skels, _ = build_skeletons(bkp, [bids.index(p) for p in pids], bodyfit, cfg)
-    scene = mp.build_scene(skels, pids, kp.fps, kp.joint_names, humanoid_config(cfg))
-    targets, weight = mp.site_targets(scene, kp, rows)
-    qpos = mp.inverse_kinematics(scene, targets, weight)
+    scene, qpos = posed_humanoids(kp, bodyfit, cfg, person_ids, body_keypoints, 2, "body_penetration_mm")
     contacts, _ = mp.contacts_and_sites(scene, qpos, np.zeros((qpos.shape[0], scene.model.nv)))
     return mp.deepest_inter_person_mm(contacts, qpos.shape[0])
 
