@@ -35,6 +35,7 @@ from pipeline.schema.results import BodyFit, PhysicsResult
 if TYPE_CHECKING:
     from pipeline.backends.humanoid_skeleton import Skeleton
     from pipeline.backends.mujoco_humanoid import HumanoidConfig
+    from pipeline.backends.mujoco_reference import Scene
 
 log = logging.getLogger(__name__)
 
@@ -217,7 +218,7 @@ def posed_humanoids(
     body_keypoints: Keypoints3D | None = None,
     min_persons: int = 1,
     what: str = "posed_humanoids",
-) -> tuple[Any, np.ndarray]:
+) -> tuple[Scene, np.ndarray]:
     """The humanoids this stage builds (from ``bodyfit``, with ``cfg``'s geometry, sized
     from ``body_keypoints``, default ``kp``), posed by inverse kinematics onto ``kp``'s
     joints: no separation, no floor lift, no simulation. Returns ``(scene, qpos)``.
