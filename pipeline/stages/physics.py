@@ -229,11 +229,13 @@ def posed_humanoids(
     from pipeline.backends import mujoco_physics as mp
 
     rows = _select_persons(kp)
+    moving = [int(kp.person_ids[r]) for r in rows]
     if person_ids is not None:
         rows = [r for r in rows if int(kp.person_ids[r]) in {int(p) for p in person_ids}]
     if len(rows) < min_persons:
         need = "two persons" if min_persons == 2 else f"{min_persons} person(s)"
-        raise ValueError(f"{what} needs {need} with motion, got {len(rows)}")
+        asked = f" of the requested {sorted(int(p) for p in person_ids)}" if person_ids is not None else ""
+        raise ValueError(f"{what} needs {need} with motion, got {len(rows)}{asked} (persons with motion: {moving})")
     pids = [int(kp.person_ids[r]) for r in rows]
     bkp = kp if body_keypoints is None else body_keypoints
     bids = [int(i) for i in bkp.person_ids]

@@ -58,5 +58,7 @@ def test_bad_input_is_refused_with_the_reason() -> None:
         needed_residual(_facing_pair(1.2, n_frames=2))
     with pytest.raises(ValueError, match=r"needed_residual: persons \[1\] are not in body_keypoints"):
         needed_residual(kp, body_keypoints=kp.replace(person_ids=np.array([0, 7])))
+    with pytest.raises(ValueError, match=r"got 0 of the requested \[5\] \(persons with motion: \[0, 1\]\)"):
+        needed_residual(kp, person_ids=[5])
     only0 = needed_residual(kp, person_ids=[0])
     assert only0.person_ids.tolist() == [0] and only0.force_n.shape == (6, 1, 3)
