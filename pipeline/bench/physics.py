@@ -34,9 +34,9 @@ import numpy as np
 from pipeline.evaluate.physics_metrics import physics_metrics
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import BodyFit
-from pipeline.stages.physics import PhysicsConfig, PhysicsInputs, body_penetration_mm
+from pipeline.stages.physics import PhysicsConfig, PhysicsInputs, penetration_of_pose, posed_humanoids
 from pipeline.stages.physics import run as run_physics
-from pipeline.stages.physics_dynamics import needed_residual
+from pipeline.stages.physics_dynamics import needed_residual, residual_of_pose
 
 
 def _kinematic_input(bout: Any, source: str, seed: int) -> tuple[Keypoints3D, BodyFit | None]:
@@ -140,12 +140,14 @@ def _run_seed(
     def body_pen(motion: Keypoints3D) -> dict[str, float]:
         # Overlap of the athletes' own bodies (the humanoids the physics collides),
         # posed onto ``motion``; ground truth is scored in the same bodies.
-        pen = body_penetration_mm(motion, bodyfit, PhysicsConfig(**physics_overrides), pids, body_keypoints=kin)
-        return {"body_pen_max_mm": float(pen.max()), "body_pen_mean_mm": float(pen.mean()), **needed(motion)}
+        # Posed once for both measures (the inverse kinematics is the costly part).
+        scene, qpos = posed_humanoids(motion, bodyfit, PhysicsConfig(**physics_overrides), pids, kin, 2, "bench physics")
+        pen = penetration_of_pose(scene, qpos)
+        need = residual_of_pose(scene, qpos, motion.fps).summary()
+        return {"body_pen_max_mm": float(pen.max()), "body_pen_mean_mm": float(pen.mean()), **needed_cols(need)}
 
-    def needed(motion: Keypoints3D) -> dict[str, float]:
+    def needed_cols(s: dict[str, float]) -> dict[str, float]:
         # The root wrench the motion needs beyond its foot contacts, in the same bodies.
-        s = needed_residual(motion, bodyfit, PhysicsConfig(**physics_overrides), pids, body_keypoints=kin).summary()
         return {k: s[k] for k in ("needed_force_frac_bw", "needed_torque_nm")}
 
     rows: list[dict] = [
@@ -175,7 +177,9 @@ def _run_seed(
                 "mujoco_inter_pen_max_mm": st["mujoco_inter_penetration_max_mm"],
                 "body_pen_max_mm": st["body_penetration_max_mm"],
                 "body_pen_mean_mm": st["body_penetration_mean_mm"],
-                **needed(out.keypoints),
+                **needed_cols(
+                    needed_residual(out.keypoints, bodyfit, cfg, pids, body_keypoints=kin).summary()
+                ),
             }
         )
     return rows

@@ -268,9 +268,15 @@ def body_penetration_mm(
     Raises ``ValueError`` when fewer than two persons remain or one of them is not in
     ``body_keypoints``.
     """
+    scene, qpos = posed_humanoids(kp, bodyfit, cfg, person_ids, body_keypoints, 2, "body_penetration_mm")
+    return penetration_of_pose(scene, qpos)
+
+
+def penetration_of_pose(scene: Scene, qpos: np.ndarray) -> np.ndarray:
+    """(frames,) deepest overlap in mm between persons of ``scene`` posed at ``qpos``
+    (frames, nq), e.g. from ``posed_humanoids``."""
     from pipeline.backends import mujoco_physics as mp
 
-    scene, qpos = posed_humanoids(kp, bodyfit, cfg, person_ids, body_keypoints, 2, "body_penetration_mm")
     contacts, _ = mp.contacts_and_sites(scene, qpos, np.zeros((qpos.shape[0], scene.model.nv)))
     return mp.deepest_inter_person_mm(contacts, qpos.shape[0])
 

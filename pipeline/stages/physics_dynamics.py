@@ -17,6 +17,7 @@ only the floor is modelled.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,7 +25,10 @@ from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import BodyFit
 from pipeline.stages.physics import PhysicsConfig, posed_humanoids
 
-__all__ = ["NeededResidual", "needed_residual"]
+if TYPE_CHECKING:
+    from pipeline.backends.mujoco_reference import Scene
+
+__all__ = ["NeededResidual", "needed_residual", "residual_of_pose"]
 
 G = 9.81
 
@@ -70,14 +74,25 @@ def needed_residual(
 
     Raises ``ValueError`` when no person has motion or one is not in ``body_keypoints``.
     """
+    _check_frames(kp.n_frames)  # before the posing, which is the expensive part
+    scene, qpos = posed_humanoids(kp, bodyfit, cfg, person_ids, body_keypoints, 1, "needed_residual")
+    return residual_of_pose(scene, qpos, kp.fps)
+
+
+def _check_frames(n_frames: int) -> None:
+    if n_frames < 3:
+        raise ValueError(f"needed_residual: need at least 3 frames for accelerations, got {n_frames}")
+
+
+def residual_of_pose(scene: Scene, qpos: np.ndarray, fps: float) -> NeededResidual:
+    """``needed_residual`` of ``scene``'s persons posed at ``qpos`` (frames, nq) at
+    ``fps``, e.g. from ``posed_humanoids``."""
     from pipeline.backends import mujoco_physics as mp
 
-    if kp.n_frames < 3:
-        raise ValueError(f"needed_residual: need at least 3 frames for accelerations, got {kp.n_frames}")
-    scene, qpos = posed_humanoids(kp, bodyfit, cfg, person_ids, body_keypoints, 1, "needed_residual")
+    _check_frames(qpos.shape[0])
     m = scene.model
-    qvel = mp.reference_velocity(m, qpos, kp.fps)
-    _, resid = mp.contact_inverse_dynamics(m, scene.layout, qpos, qvel, kp.fps)
+    qvel = mp.reference_velocity(m, qpos, fps)
+    _, resid = mp.contact_inverse_dynamics(m, scene.layout, qpos, qvel, fps)
     weight = np.array([p.mass_kg * G for p in scene.layout.persons])
     return NeededResidual(
         person_ids=np.asarray(scene.person_ids, dtype=np.int64),
