@@ -32,13 +32,12 @@ from pipeline.backends.anny_fit_init import (
     init_roots,
     joint_idx,
     rotmat_rows,
-    run_lbfgs,
 )
 from pipeline.backends.anny_fit_terms import MeshMoments, lever_arms, rest_tails, sole_vertices
 from pipeline.backends.anny_fk import SparseKeypoints, keypoints_from_bones
 from pipeline.backends.anny_model import FIT_DTYPES, AnnyBody, anny_fit_body
 from pipeline.backends.anny_priors import joint_limit_penalty, joint_limit_tables, load_pose_prior
-from pipeline.backends.fit_common import ground_term, sequence_terms
+from pipeline.backends.fit_common import ground_term, run_pose_passes, sequence_terms
 from pipeline.schema.joints import COCO17_FEET, FOOT_JOINTS
 from pipeline.stages.fit_config import FitConfig
 
@@ -208,14 +207,18 @@ def _fit(
             kp = kp + (G[:, dom] @ offsets[row_person][..., None])[..., 0]
         return kp
 
-    def evaluate(use_2d: bool) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    def evaluate(
+        use_2d: bool, accel_weights: torch.Tensor | None
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
         delta, pose, root, offsets, shape_u = unscale()
         heads = set_shape(shape_u)
         G_root = rotmat_rows(delta) @ R0_t
         full = torch.cat([roma.rotmat_to_rotvec(G_root)[:, None], pose], dim=1)
         G, x = forward_kinematics_rootmat(body, G_root, pose, root, heads)
         kp = keypoints(G, x, offsets)
-        out = sequence_terms(cfg, kp, kp3d, w3d, P_t, uv, w2d, use_2d, pose, G_root, G, x, heads, npers, nf, moments)
+        out = sequence_terms(
+            cfg, kp, kp3d, w3d, P_t, uv, w2d, use_2d, pose, G_root, G, x, heads, npers, nf, moments, accel_weights
+        )
         if cfg.calibrate_landmarks:
             out["landmarks"] = cfg.w_landmarks * offsets.square().sum()
         if cfg.refine_shape:
@@ -226,16 +229,14 @@ def _fit(
         if cfg.w_ground > 0:
             sole_z = soles(G, x, row_person)[..., 2]
             out["ground"] = cfg.w_ground * ground_term(kp, foot, sole_z)
-        return sum(out.values()), out  # type: ignore[return-value]
+        return sum(out.values()), out, kp  # type: ignore[return-value]
 
-    run_lbfgs(params, lambda: evaluate(False)[0], cfg.pose_iters_3d, cfg)
-    if cfg.use_2d:
-        run_lbfgs(params, lambda: evaluate(True)[0], cfg.pose_iters, cfg)
+    accel_w = run_pose_passes(params, evaluate, cfg, npers, nf)
     timings["pose_s"] = time.perf_counter() - t0
     timings["pose_cpu_s"] = time.process_time() - c0
 
     with torch.no_grad():
-        total, parts = evaluate(cfg.use_2d)
+        total, parts, _ = evaluate(cfg.use_2d, accel_w)
         terms = {k: float(v) for k, v in parts.items()}
         delta, pose, root, offsets, shape_u = unscale()
         heads = set_shape(shape_u)

@@ -77,6 +77,41 @@ def run_lbfgs(
     opt.step(_closure)
 
 
+Evaluate = Callable[[bool, "torch.Tensor | None"], tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]]
+"""``evaluate(use_2d, accel_weights) -> (loss, terms, keypoints (persons * frames, joints, 3))``."""
+
+
+def run_pose_passes(
+    params: list[torch.Tensor], evaluate: Evaluate, cfg: FitConfig, npers: int, nf: int
+) -> torch.Tensor | None:
+    """The pose optimisation both body models share: ``cfg.pose_iters_3d`` L-BFGS iterations
+    without the reprojection term, then (``cfg.use_2d``) ``cfg.pose_iters`` of the full loss.
+
+    After ``cfg.accel_adapt_after`` iterations of the full loss, the acceleration penalty is
+    re-weighted per keypoint and frame from the motion fitted so far
+    (``adaptive_accel_weights``), and the remaining iterations run with those weights (the
+    L-BFGS history restarts, as the loss changed). Returns the weights, or None when the
+    penalty was not re-weighted; the caller evaluates its final loss with them."""
+    run_lbfgs(params, lambda: evaluate(False, None)[0], cfg.pose_iters_3d, cfg)
+    if not cfg.use_2d:
+        return None
+    adapt = 0 < cfg.accel_adapt_after < cfg.pose_iters and cfg.w_accel > 0 and nf > 2
+    n1 = cfg.accel_adapt_after if adapt else cfg.pose_iters
+    run_lbfgs(params, lambda: evaluate(True, None)[0], n1, cfg)
+    if not adapt:
+        return None
+    with torch.no_grad():
+        kp = evaluate(True, None)[2]
+    w = adaptive_accel_weights(
+        kp.reshape(npers, nf, kp.shape[-2], 3),
+        cfg.accel_adapt_scale_m,
+        cfg.accel_adapt_window,
+        cfg.accel_adapt_gain,
+    )
+    run_lbfgs(params, lambda: evaluate(True, w)[0], cfg.pose_iters - n1, cfg)
+    return w
+
+
 def observed_lengths(obs: PersonObservations) -> tuple[np.ndarray, np.ndarray]:
     """Median length (m) and a weight per ``SHAPE_LIMBS`` limb (0 when never observed)."""
     lengths, weights = [], []
@@ -162,7 +197,9 @@ FOOT_KEYPOINTS: tuple[int, ...] = tuple(
 """Ankles, heels and toes (indices into COCO-17 + feet, whose first 17 are COCO-17)."""
 
 
-def accel_term(kp: torch.Tensor, scale_m: float, whole_body: float = 1.0) -> torch.Tensor:
+def accel_term(
+    kp: torch.Tensor, scale_m: float, whole_body: float = 1.0, weights: torch.Tensor | None = None
+) -> torch.Tensor:
     """Sum of (pseudo-Huber, scale ``scale_m``; 0: plain) squared second differences of
     keypoints ``kp`` (persons, frames, joints, 3) along frames (m^2 per frame^2).
 
@@ -170,7 +207,10 @@ def accel_term(kp: torch.Tensor, scale_m: float, whole_body: float = 1.0) -> tor
     whole-body acceleration ā (their mean) and the rest: |a_j|² → |a_j − ā|² +
     ``whole_body`` · |ā|². Below 1, the body (footwork, weight shifts) may accelerate more
     freely than one limb relative to it. The feet (``FOOT_KEYPOINTS``) keep their plain
-    squared acceleration, so that a planted foot stays still while the body shifts its weight."""
+    squared acceleration, so that a planted foot stays still while the body shifts its weight.
+
+    ``weights`` (persons, frames - 2, joints), from ``adaptive_accel_weights``, replace the
+    pseudo-Huber: each keypoint's squared term is multiplied by its weight at that frame."""
     a = kp[:, 2:] - 2 * kp[:, 1:-1] + kp[:, :-2]
     nj = a.shape[2]
     feet = [i for i in FOOT_KEYPOINTS if i < nj]
@@ -182,10 +222,34 @@ def accel_term(kp: torch.Tensor, scale_m: float, whole_body: float = 1.0) -> tor
         a2 = torch.cat([split, a[:, :, feet].square().sum(-1)], dim=2)
     else:
         a2 = a.square().sum(-1)
+    if weights is not None:
+        if weights.shape != a.shape[:3]:
+            raise ValueError(
+                f"accel_term: weights of shape {tuple(weights.shape)}, need {tuple(a.shape[:3])}"
+            )
+        return (a2 * weights[:, :, body + feet].to(a2.dtype)).sum()
     if scale_m > 0:  # quadratic for jitter, linear for genuine fast motion (punches)
         d2 = scale_m**2
         a2 = 2 * d2 * (torch.sqrt(1 + a2 / d2) - 1)
     return a2.sum()
+
+
+def adaptive_accel_weights(kp: torch.Tensor, scale_m: float, window: int, gain: float) -> torch.Tensor:
+    """Per keypoint and frame weights of the acceleration penalty, from a motion fitted so
+    far: ``kp`` (persons, frames, joints, 3) → (persons, frames - 2, joints).
+
+    m is the root mean square of the keypoint's acceleration |a| over the ``window`` frames
+    either side; the weight is ``gain · s² / (s² + m²)`` with s = ``scale_m``. A keypoint at
+    rest is smoothed ``gain`` times harder than the plain penalty, one in a punch or a step
+    (m ≫ s) much less: the penalty acts as the smoother of a motion whose acceleration
+    variance changes over time, with the variance estimated from the fit itself."""
+    with torch.no_grad():
+        a2 = (kp[:, 2:] - 2 * kp[:, 1:-1] + kp[:, :-2]).square().sum(-1)
+        if window > 0:
+            k = 2 * window + 1
+            padded = torch.nn.functional.pad(a2.permute(0, 2, 1), (window, window), mode="replicate")
+            a2 = torch.nn.functional.avg_pool1d(padded, k, stride=1).permute(0, 2, 1)
+        return gain * scale_m**2 / (scale_m**2 + a2)
 
 
 def sequence_terms(
@@ -205,6 +269,7 @@ def sequence_terms(
     npers: int,
     nf: int,
     mesh_velocity: Callable[[torch.Tensor], torch.Tensor] | None,
+    accel_weights: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
     """The weighted loss terms both body models share, in this order: ``3d``, ``2d``
     (when ``use_2d``), ``reg``, ``smooth``, ``accel``.
@@ -214,7 +279,7 @@ def sequence_terms(
     3, 3) and x (rows, bones, 3) world bone frames, ``rest_heads`` (rows, bones, 3) their
     rest positions. ``mesh_velocity`` maps the frame-to-frame change of the bones' affine
     transforms (persons, frames - 1, bones, 3, 4) to the summed squared mesh-vertex velocity;
-    None leaves out ``smooth``.
+    None leaves out ``smooth``. ``accel_weights``: see ``accel_term``.
     """
     out: dict[str, torch.Tensor] = {}
     out["3d"] = cfg.w_3d * (w3d * (kp - kp3d).square().sum(-1)).sum()
@@ -231,7 +296,7 @@ def sequence_terms(
         out["smooth"] = cfg.w_smooth * (sm + mesh_velocity(A[:, 1:] - A[:, :-1]))
     if cfg.w_accel > 0 and nf > 2:  # pseudo-Huber: quadratic for jitter, linear for punches
         out["accel"] = cfg.w_accel * accel_term(
-            kp.reshape(npers, nf, kp.shape[-2], 3), cfg.accel_scale_m, cfg.accel_whole_body
+            kp.reshape(npers, nf, kp.shape[-2], 3), cfg.accel_scale_m, cfg.accel_whole_body, accel_weights
         )
     return out
 

@@ -43,6 +43,7 @@ from pipeline.backends.fit_common import (
     min_rotation,
     observed_lengths,
     run_lbfgs,
+    run_pose_passes,
     sequence_terms,
 )
 from pipeline.backends.smpl_body import N_BETAS, SmplBody, forward, keypoints, skin, smpl_body
@@ -390,9 +391,13 @@ def _fit(
             flat = dA.permute(0, 1, 3, 2, 4).reshape(npers, (nf - 1) * 3, nb * 4)
             return (flat @ m_).square().sum()
 
-    def evaluate(use_2d: bool) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    def evaluate(
+        use_2d: bool, accel_weights: torch.Tensor | None
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
         pose, offsets, betas, b_rows, J, G_root, G, x, R_local, kp = state()
-        out = sequence_terms(cfg, kp, kp3d, w3d, P_t, uv, w2d, use_2d, pose, G_root, G, x, J, npers, nf, mesh_velocity)
+        out = sequence_terms(
+            cfg, kp, kp3d, w3d, P_t, uv, w2d, use_2d, pose, G_root, G, x, J, npers, nf, mesh_velocity, accel_weights
+        )
         if cfg.calibrate_landmarks:
             out["landmarks"] = cfg.w_landmarks * offsets.square().sum()
         if cfg.refine_shape:
@@ -405,16 +410,14 @@ def _fit(
         if cfg.w_ground > 0:
             sole_z = skin(soles, b_rows, J, G, x, R_local)[..., 2]
             out["ground"] = cfg.w_ground * ground_term(kp, foot, sole_z)
-        return sum(out.values()), out  # type: ignore[return-value]
+        return sum(out.values()), out, kp  # type: ignore[return-value]
 
-    run_lbfgs(params, lambda: evaluate(False)[0], cfg.pose_iters_3d, cfg)
-    if cfg.use_2d:
-        run_lbfgs(params, lambda: evaluate(True)[0], cfg.pose_iters, cfg)
+    accel_w = run_pose_passes(params, evaluate, cfg, npers, nf)
     timings["pose_s"] = time.perf_counter() - t0
     timings["pose_cpu_s"] = time.process_time() - c0
 
     with torch.no_grad():
-        total, parts = evaluate(cfg.use_2d)
+        total, parts, _ = evaluate(cfg.use_2d, accel_w)
         pose, _, betas, _, _, G_root, _, _, _, kp = state()
         full = torch.cat([roma.rotmat_to_rotvec(G_root)[:, None], pose], dim=1)
         root = root_s / s_root

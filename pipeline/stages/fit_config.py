@@ -63,6 +63,31 @@ class FitConfig:
     skating unchanged (150 frames, seeds 0-3: 1.64 → 1.63 mm/frame). 0.2 and 0.5 are within
     0.2 mm; splitting the feet too raised their skating by 20-40 %."""
 
+    accel_adapt_after: int = 100
+    """Iterations of the full pass (``pose_iters``) after which the acceleration penalty is
+    re-weighted per keypoint and frame from the motion fitted so far; the remaining
+    iterations use those weights in place of the pseudo-Huber (``fit_common.
+    adaptive_accel_weights``). Keypoints at rest are then smoothed harder and keypoints in a
+    punch or a step less: a smoother whose acceleration variance changes over time. 0 (or
+    >= ``pose_iters``): never. Against 0 (``cornerman bench fit``, 4 cameras, 300 frames),
+    MPJPE / acceleration error: seed 0 9.59 / 3.86 → 9.19 / 3.59 mm, mm/f²; seed 1
+    10.18 / 3.80 → 9.67 / 3.51; seed 2 10.24 / 3.78 → 9.55 / 3.47; 2 cameras (seed 0)
+    22.90 / 4.92 → 23.08 / 4.75. Same number of iterations, so the same time. Re-weighting
+    twice (after 70 and 110) was no better (9.70 / 3.65, seed 0)."""
+
+    accel_adapt_scale_m: float = 0.002
+    """s of the re-weighting (m per frame²): the weight is ``accel_adapt_gain · s² / (s² +
+    m²)``, m the keypoint's RMS acceleration over ``accel_adapt_window`` frames either side.
+    Seed 0: 0.0015 → 3.79, 0.0025 → 3.57 mm/f²."""
+
+    accel_adapt_gain: float = 4.0
+    """Weight, relative to ``w_accel``, of the re-weighted penalty at rest (m = 0). Seed 0:
+    3 (re-weighting after 120) → 3.67, 6 with a pseudo-Huber kept → 3.77 mm/f²."""
+
+    accel_adapt_window: int = 2
+    """Frames either side over which m is averaged (0: that frame's acceleration alone, which
+    a noisy fit over-reads: 3.85 mm/f² with weights from a whole first fit, against 3.57 for 2)."""
+
     calibrate_landmarks: bool = True
     """Estimate one constant offset per person and keypoint, rigid in the keypoint's bone
     frame: absorbs the difference between the detector's landmark definitions and anny's
@@ -162,6 +187,16 @@ class FitConfig:
                 raise ValueError(f"FitConfig.{name} must be >= 0, got {getattr(self, name)}")
         if self.accel_scale_m < 0:
             raise ValueError(f"FitConfig.accel_scale_m must be >= 0, got {self.accel_scale_m}")
+        if self.accel_adapt_after < 0 or self.accel_adapt_window < 0:
+            raise ValueError(
+                "FitConfig.accel_adapt_after and accel_adapt_window must be >= 0, got "
+                f"{self.accel_adapt_after} and {self.accel_adapt_window}"
+            )
+        if not (self.accel_adapt_scale_m > 0 and self.accel_adapt_gain > 0):
+            raise ValueError(
+                "FitConfig.accel_adapt_scale_m and accel_adapt_gain must be positive, got "
+                f"{self.accel_adapt_scale_m} and {self.accel_adapt_gain}"
+            )
         if self.gm_sigma_px <= 0:
             raise ValueError(f"FitConfig.gm_sigma_px must be positive, got {self.gm_sigma_px}")
         if not 0 <= self.min_conf_2d < 1:

@@ -141,6 +141,10 @@ def test_config_validation() -> None:
         FitConfig(precision="float16")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="accel_whole_body"):
         FitConfig(accel_whole_body=-0.1)
+    with pytest.raises(ValueError, match="accel_adapt_after"):
+        FitConfig(accel_adapt_after=-1)
+    with pytest.raises(ValueError, match="accel_adapt_scale_m"):
+        FitConfig(accel_adapt_scale_m=0.0)
 
 
 def test_accel_term_splits_whole_body_and_relative_acceleration() -> None:
@@ -180,6 +184,85 @@ def test_accel_term_splits_whole_body_and_relative_acceleration() -> None:
     heel = COCO17_FEET.index("left_heel")
     for lam in (1.0, 0.3):
         assert float(accel_term(moved([heel], 2), 0.0, lam)) == pytest.approx(4 * a2)
+
+
+def test_adaptive_accel_weights_follow_local_acceleration() -> None:
+    """Weights are gain at rest and gain * s^2 / (s^2 + m^2) where the keypoint accelerates,
+    m the RMS acceleration over the window; they replace the pseudo-Huber in accel_term."""
+    import torch
+
+    from pipeline.backends.fit_common import accel_term, adaptive_accel_weights
+
+    nj, nf = len(COCO17_FEET), 12
+    x = torch.zeros(2, nf, nj, 3, dtype=torch.float64)
+    x[:, :, :, 0] = 0.01 * torch.arange(nf, dtype=torch.float64)[None, :, None]  # constant velocity
+    wrist = COCO17_FEET.index("right_wrist")
+    x[1, 6, wrist, 2] += 0.01  # one frame off by 1 cm: second differences +1, -2, +1 cm
+    s, gain = 0.002, 4.0
+    w0 = adaptive_accel_weights(x, s, 0, gain)
+    w1 = adaptive_accel_weights(x, s, 1, gain)
+    assert w0.shape == (2, nf - 2, nj)
+    assert torch.allclose(w0[0], torch.full_like(w0[0], gain))  # person 0 never accelerates
+    # Person 1's wrist: second differences at frames 5, 6, 7 (rows 4, 5, 6) are 1, 2, 1 cm.
+    m2 = torch.tensor([0.01, 0.02, 0.01], dtype=torch.float64) ** 2
+    assert torch.allclose(w0[1, 4:7, wrist], gain * s**2 / (s**2 + m2))
+    assert float(w0[1, 3, wrist]) == pytest.approx(gain) and float(w0[1, 7, wrist]) == pytest.approx(gain)
+    # Window 1: frame 4 (row 3) sees (0 + 0 + 1 cm^2) / 3 from its neighbours.
+    assert float(w1[1, 3, wrist]) == pytest.approx(gain * s**2 / (s**2 + 0.01**2 / 3))
+    assert float(w1[1, 2, wrist]) == pytest.approx(gain)
+    # In accel_term: unit weights are the plain squared penalty; a zero weight drops a term.
+    ones = torch.ones(2, nf - 2, nj, dtype=torch.float64)
+    assert float(accel_term(x, 0.005, 1.0, ones)) == pytest.approx(float(accel_term(x, 0.0, 1.0)))
+    assert float(accel_term(x, 0.0, 1.0)) == pytest.approx(6 * 0.01**2)
+    drop = ones.clone()
+    drop[1, 5, wrist] = 0.0  # the wrist's own (split) term at its 2 cm second difference
+    nb = nj - 8
+    wrist_term = (0.02 * (1 - 1 / nb)) ** 2 + (0.02 / nb) ** 2
+    assert float(accel_term(x, 0.0, 1.0, drop)) == pytest.approx(6 * 0.01**2 - wrist_term)
+    with pytest.raises(ValueError, match="weights of shape"):
+        accel_term(x, 0.0, 1.0, ones[:, 1:])
+
+
+def test_pose_passes_reweight_after_the_configured_iterations(monkeypatch: pytest.MonkeyPatch) -> None:
+    """run_pose_passes runs the full loss unweighted for accel_adapt_after iterations, then
+    with weights from the motion so far; 0 keeps the pseudo-Huber throughout."""
+    import torch
+
+    import pipeline.backends.fit_common as fc
+    from pipeline.backends.fit_common import accel_term, run_pose_passes
+
+    budgets: list[int] = []  # iteration budget of every L-BFGS run
+    real_lbfgs = fc.run_lbfgs
+    monkeypatch.setattr(fc, "run_lbfgs", lambda p, c, iters, cfg: (budgets.append(iters), real_lbfgs(p, c, iters, cfg)))
+    nf, nj = 20, len(COCO17_FEET)
+    rng = np.random.default_rng(0)
+    target = torch.tensor(rng.normal(scale=0.01, size=(1, nf, nj, 3)))
+    calls: list[bool] = []
+
+    def fit(cfg: FitConfig) -> tuple[torch.Tensor | None, torch.Tensor]:
+        calls.clear()
+        budgets.clear()
+        x = torch.zeros(nf, nj, 3, dtype=torch.float64, requires_grad=True)
+
+        def evaluate(use_2d: bool, w: torch.Tensor | None) -> tuple[torch.Tensor, dict, torch.Tensor]:
+            calls.append(w is not None)
+            acc = accel_term(x[None], cfg.accel_scale_m, 1.0, w)
+            loss = (x - target[0]).square().sum() + cfg.w_accel * acc
+            return loss, {}, x
+
+        return run_pose_passes([x], evaluate, cfg, 1, nf), x.detach()
+
+    w, x_adapt = fit(FitConfig(pose_iters_3d=2, pose_iters=10, accel_adapt_after=4, w_accel=1.0))
+    assert w is not None and w.shape == (1, nf - 2, nj) and calls.count(True) > 0
+    assert not any(calls[: calls.index(True)]) and all(calls[calls.index(True) :])
+    assert budgets == [2, 4, 6]
+    w, x_plain = fit(FitConfig(pose_iters_3d=2, pose_iters=10, accel_adapt_after=0, w_accel=1.0))
+    assert w is None and not any(calls) and budgets == [2, 10]
+    assert not torch.allclose(x_adapt, x_plain)
+    # Without an acceleration penalty nothing is re-weighted, and every iteration still runs.
+    w, x_free = fit(FitConfig(pose_iters_3d=0, pose_iters=10, accel_adapt_after=4, w_accel=0.0))
+    assert w is None and not any(calls) and budgets == [0, 10]
+    assert torch.allclose(x_free, target[0], atol=1e-6)
 
 
 def test_float32_fit_matches_float64(motion: AnnyMotion) -> None:
