@@ -129,7 +129,7 @@ def _set_fit_body_model(session: Path, body_model: str | None, body_model_path: 
         fit["body_model_path"] = str(body_model_path.expanduser().resolve())
     try:
         FitConfig(**fit)
-    except TypeError as e:
+    except (TypeError, ValueError) as e:
         raise ValueError(f"{session / 'session.json'}: stage_config.fit: {e}") from e
     if fit.get("body_model", "anny") not in ("anny", "smpl", "smplx"):
         raise ValueError(f"--body-model must be anny, smpl or smplx, got {fit['body_model']!r}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
@@ -171,6 +172,16 @@ class FitConfig:
     """SMPL/SMPL-X only: which model file of ``body_model_path`` to fit (``SMPL_<GENDER>.pkl``)."""
 
     def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):  # session.json values arrive untyped
+            v = getattr(self, f.name)
+            ok = {
+                "int": isinstance(v, int) and not isinstance(v, bool),
+                "float": isinstance(v, (int, float)) and not isinstance(v, bool),
+                "bool": isinstance(v, bool),
+                "str": isinstance(v, str),
+            }.get(str(f.type), True)
+            if not ok:
+                raise ValueError(f"FitConfig.{f.name} must be {f.type}, got {v!r} ({type(v).__name__})")
         for name in (
             "w_2d",
             "w_3d",
@@ -187,16 +198,12 @@ class FitConfig:
                 raise ValueError(f"FitConfig.{name} must be >= 0, got {getattr(self, name)}")
         if self.accel_scale_m < 0:
             raise ValueError(f"FitConfig.accel_scale_m must be >= 0, got {self.accel_scale_m}")
-        if self.accel_adapt_after < 0 or self.accel_adapt_window < 0:
-            raise ValueError(
-                "FitConfig.accel_adapt_after and accel_adapt_window must be >= 0, got "
-                f"{self.accel_adapt_after} and {self.accel_adapt_window}"
-            )
-        if not (self.accel_adapt_scale_m > 0 and self.accel_adapt_gain > 0):
-            raise ValueError(
-                "FitConfig.accel_adapt_scale_m and accel_adapt_gain must be positive, got "
-                f"{self.accel_adapt_scale_m} and {self.accel_adapt_gain}"
-            )
+        for name in ("accel_adapt_after", "accel_adapt_window"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"FitConfig.{name} must be >= 0, got {getattr(self, name)}")
+        for name in ("accel_adapt_scale_m", "accel_adapt_gain"):
+            if not getattr(self, name) > 0:  # also refuses NaN
+                raise ValueError(f"FitConfig.{name} must be positive, got {getattr(self, name)}")
         if self.gm_sigma_px <= 0:
             raise ValueError(f"FitConfig.gm_sigma_px must be positive, got {self.gm_sigma_px}")
         if not 0 <= self.min_conf_2d < 1:

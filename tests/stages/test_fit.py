@@ -145,6 +145,12 @@ def test_config_validation() -> None:
         FitConfig(accel_adapt_after=-1)
     with pytest.raises(ValueError, match="accel_adapt_scale_m"):
         FitConfig(accel_adapt_scale_m=0.0)
+    # session.json values arrive untyped: a wrong type is refused with the field named
+    with pytest.raises(ValueError, match=r"accel_adapt_after must be int, got '100' \(str\)"):
+        FitConfig(accel_adapt_after="100")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="use_2d must be bool"):
+        FitConfig(use_2d=1)  # type: ignore[arg-type]
+    assert FitConfig(w_accel=500).w_accel == 500  # an int where a float is expected is fine
 
 
 def test_accel_term_splits_whole_body_and_relative_acceleration() -> None:
