@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import numbers
 from dataclasses import dataclass
 from typing import Literal
 
@@ -175,8 +176,8 @@ class FitConfig:
         for f in dataclasses.fields(self):  # session.json values arrive untyped
             v = getattr(self, f.name)
             ok = {
-                "int": isinstance(v, int) and not isinstance(v, bool),
-                "float": isinstance(v, (int, float)) and not isinstance(v, bool),
+                "int": isinstance(v, numbers.Integral) and not isinstance(v, bool),
+                "float": isinstance(v, numbers.Real) and not isinstance(v, bool),
                 "bool": isinstance(v, bool),
                 "str": isinstance(v, str),
             }.get(str(f.type), True)

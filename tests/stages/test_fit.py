@@ -151,6 +151,7 @@ def test_config_validation() -> None:
     with pytest.raises(ValueError, match="use_2d must be bool"):
         FitConfig(use_2d=1)  # type: ignore[arg-type]
     assert FitConfig(w_accel=500).w_accel == 500  # an int where a float is expected is fine
+    assert FitConfig(pose_iters=np.int64(20)).pose_iters == 20  # and numpy integers
 
 
 def test_accel_term_splits_whole_body_and_relative_acceleration() -> None:
