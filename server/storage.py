@@ -72,6 +72,7 @@ def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | N
     under an allowed root), or inputs: one calibration file (``*.toml``, ``*.qca.txt``)
     and videos (``<camera>.mp4|avi|mov|mkv|webm``). Returns the ``SessionConfig``.
     """
+    from pipeline.runner.core import check_stage_configs
     from pipeline.schema.session import SessionConfig
 
     if not src.is_dir():
@@ -101,6 +102,10 @@ def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | N
         cfg = SessionConfig(name=name or src.name, source="video", calibration=str(calibs[0]), videos=videos)
     if name:
         cfg = replace(cfg, name=name)
+    try:  # a bad stage_config value is refused here, not when a queued job reaches its stage
+        check_stage_configs(cfg)
+    except ValueError as e:
+        raise ValueError(f"{src}/{e}") from e
     cfg.save(dest)
     return cfg
 

@@ -118,6 +118,7 @@ def _set_fit_body_model(session: Path, body_model: str | None, body_model_path: 
     (so the fit stage goes stale and re-runs, and the viewer finds the files for the meshes)."""
     import dataclasses
 
+    from pipeline.schema.config_types import build_config
     from pipeline.schema.session import SessionConfig
     from pipeline.stages.fit_config import FitConfig
 
@@ -127,12 +128,9 @@ def _set_fit_body_model(session: Path, body_model: str | None, body_model_path: 
         fit["body_model"] = body_model
     if body_model_path is not None:
         fit["body_model_path"] = str(body_model_path.expanduser().resolve())
-    try:
-        FitConfig(**fit)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"{session / 'session.json'}: stage_config.fit: {e}") from e
-    if fit.get("body_model", "anny") not in ("anny", "smpl", "smplx"):
-        raise ValueError(f"--body-model must be anny, smpl or smplx, got {fit['body_model']!r}")
+    if body_model is not None and body_model not in ("anny", "smpl", "smplx"):
+        raise ValueError(f"--body-model must be anny, smpl or smplx, got {body_model!r}")
+    build_config(FitConfig, fit, f"{session / 'session.json'}: stage_config.fit")
     if fit.get("body_model", "anny") != "anny":
         # Check the files before saving: a wrong path must not end up in session.json.
         from pipeline.backends.smpl_body import check_smpl_available

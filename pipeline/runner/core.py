@@ -14,6 +14,7 @@ from pipeline.artifacts import ArtifactStore, FileHashCache, Manifest, config_ha
 from pipeline.runner.registry import STAGE_ORDER, get_specs
 from pipeline.runner.spec import NullProgress, StageContext, StageSpec
 from pipeline.schema.annotations import annotations_for, annotations_hash, load_annotations
+from pipeline.schema.config_types import build_config
 from pipeline.schema.session import SessionConfig
 
 log = logging.getLogger(__name__)
@@ -35,20 +36,24 @@ def enabled_stages(session: SessionConfig) -> list[str]:
     unknown = [s for s in wanted if s not in STAGE_ORDER]
     if unknown:
         raise ValueError(f"session.json: unknown stages {unknown}; known: {list(STAGE_ORDER)}")
+    unknown = [s for s in session.stage_config if s not in STAGE_ORDER]
+    if unknown:
+        raise ValueError(f"session.json: stage_config has unknown stages {unknown}; known: {list(STAGE_ORDER)}")
     return [s for s in STAGE_ORDER if s in wanted]
 
 
 def resolve_config(spec: StageSpec, session: SessionConfig) -> Any:
-    """Build the stage config from defaults + session.json overrides (errors name the key)."""
-    overrides = session.stage_config.get(spec.name, {})
-    known = {f.name for f in dataclasses.fields(spec.config_cls)}
-    extra = set(overrides) - known
-    if extra:
-        raise ValueError(f"session.json: stage_config.{spec.name} has unknown keys {sorted(extra)}; known: {sorted(known)}")
-    try:
-        return spec.config_cls(**overrides)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"session.json: stage_config.{spec.name}: {e}") from e
+    """Build the stage config from defaults + session.json overrides; every error names the
+    key and its type or range problem (``pipeline.schema.config_types.build_config``)."""
+    return build_config(spec.config_cls, session.stage_config.get(spec.name, {}), f"session.json: stage_config.{spec.name}")
+
+
+def check_stage_configs(session: SessionConfig) -> None:
+    """``ValueError`` unless every enabled stage's ``stage_config`` builds (run before queueing
+    a job, so that a bad value is reported at submission rather than mid-run)."""
+    specs = get_specs()
+    for name in enabled_stages(session):
+        resolve_config(specs[name], session)
 
 
 def _config_dict(cfg: Any) -> dict[str, Any]:
@@ -143,12 +148,15 @@ def run(
     load_annotations(session_dir / "annotations.json")  # fail early on a malformed overlay
     last = enabled.index(to_stage) if to_stage else len(enabled) - 1
     first_forced = enabled.index(from_stage) if from_stage else len(enabled)
+    # Every config up to ``to_stage`` first: a bad value in a late stage must not surface
+    # only after the early stages have run.
+    cfgs = {name: resolve_config(specs[name], session) for name in enabled[: last + 1]}
     hashes = FileHashCache(store.root / ".hashcache.json")
     reports: list[StageReport] = []
     for i, name in enumerate(enabled[: last + 1]):
         spec = specs[name]
         ctx = StageContext(session_dir, session, store, name, progress_sink=sink)
-        cfg = resolve_config(spec, session)
+        cfg = cfgs[name]
         chash = config_hash(_config_dict(cfg))
         fp = fingerprint(ctx, spec, cfg, enabled, hashes)
         m = store.manifest(name)

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import dataclasses
-import numbers
 from dataclasses import dataclass
 from typing import Literal
+
+from pipeline.schema.config_types import check_field_types
 
 
 @dataclass(frozen=True)
@@ -173,16 +173,7 @@ class FitConfig:
     """SMPL/SMPL-X only: which model file of ``body_model_path`` to fit (``SMPL_<GENDER>.pkl``)."""
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):  # session.json values arrive untyped
-            v = getattr(self, f.name)
-            ok = {
-                "int": isinstance(v, numbers.Integral) and not isinstance(v, bool),
-                "float": isinstance(v, numbers.Real) and not isinstance(v, bool),
-                "bool": isinstance(v, bool),
-                "str": isinstance(v, str),
-            }.get(str(f.type), True)
-            if not ok:
-                raise ValueError(f"FitConfig.{f.name} must be {f.type}, got {v!r} ({type(v).__name__})")
+        check_field_types(self)  # values from Python callers; session.json goes through build_config
         for name in (
             "w_2d",
             "w_3d",

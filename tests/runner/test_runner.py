@@ -79,6 +79,29 @@ def test_bad_stage_config_is_a_clear_error(tiny_session: Path) -> None:
         run(tiny_session)
 
 
+def test_a_wrong_type_in_stage_config_names_the_key_before_any_stage_runs(tiny_session: Path) -> None:
+    run(tiny_session)
+    store = ArtifactStore(tiny_session)
+    before = {s: store.manifest(s) for s in ("detect2d", "track")}
+    cfg = json.loads((tiny_session / "session.json").read_text())
+    # detect2d goes stale (new threshold), and track, the later stage, holds a string for a number:
+    # the error comes first, so detect2d is not re-run and nothing is rewritten.
+    cfg["stage_config"] = {"detect2d": {"min_keypoint_conf": 0.5}, "track": {"sync_tolerance_frames": "two"}}
+    (tiny_session / "session.json").write_text(json.dumps(cfg))
+    with pytest.raises(ValueError, match=r"session\.json: stage_config\.track\.sync_tolerance_frames must be float, "
+                                         r"got 'two' \(str\)"):  # fmt: skip
+        run(tiny_session)
+    assert {s: store.manifest(s) for s in ("detect2d", "track")} == before
+    # Only the stages up to to_stage are built: the same session runs to detect2d.
+    assert [r.stage for r in run(tiny_session, to_stage="detect2d")] == ["detect2d"]
+    cfg["stage_config"] = {"trak": {"use_source_ids": True}}  # a typo must not be ignored silently
+    (tiny_session / "session.json").write_text(json.dumps(cfg))
+    with pytest.raises(ValueError, match=r"stage_config has unknown stages \['trak'\]"):
+        run(tiny_session)
+    with pytest.raises(ValueError, match=r"stage_config has unknown stages \['trak'\]"):
+        stage_status(tiny_session)
+
+
 def test_missing_input_file_names_it(tiny_session: Path) -> None:
     (tiny_session / "inputs/tracks2d.npz").unlink()
     with pytest.raises(ValueError, match="tracks2d.npz"):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -185,6 +186,17 @@ def test_batch_creates_sessions_and_jobs_all_or_nothing(client: TestClient, toke
     r = client.post("/api/batch", json={"sessions": [{"path": str(other)}, {"path": str(settings.allowed_roots[0])}]},
                     headers=admin)
     assert r.status_code == 422 and "no session.json" in r.json()["detail"]
+    # A session.json whose stage_config holds a wrong type is refused at submission, naming the
+    # file and the key (before, the job failed when the worker reached that stage).
+    bad = settings.allowed_roots[0] / "bout_badcfg"
+    shutil.copytree(other, bad)
+    meta = json.loads((bad / "session.json").read_text())
+    meta["stage_config"] = {"track": {"sync_tolerance_frames": "two"}}
+    (bad / "session.json").write_text(json.dumps(meta))
+    r = client.post("/api/batch", json={"sessions": [{"path": str(other)}, {"path": str(bad)}]}, headers=admin)
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"] == (f"{bad}/session.json: stage_config.track.sync_tolerance_frames must be float, "
+                                  "got 'two' (str)")
     assert len(client.get("/api/sessions", headers=admin).json()) == n_before
     assert len(list(settings.sessions_dir.iterdir())) == n_before  # no leftover folders
     run_jobs(settings)
