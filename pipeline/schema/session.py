@@ -73,6 +73,11 @@ class SessionConfig:
             raise ValueError(f"session.keypoint_format must be openpose/coco, got {self.keypoint_format!r}")
         if self.fps < 0:
             raise ValueError(f"session.fps must be >= 0, got {self.fps}")
+        if not isinstance(self.stage_config, dict):
+            raise ValueError(
+                "session.stage_config must be an object of per-stage settings "
+                f'({{"triangulate": {{"min_views": 2}}}}), got {type(self.stage_config).__name__}'
+            )
 
     def to_json(self) -> str:
         d = asdict(self)

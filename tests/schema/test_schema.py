@@ -128,3 +128,6 @@ def test_session_config_errors(tmp_path: Path) -> None:
     (tmp_path / "session.json").write_text('{"name": "x", "source": "tracks", "calibration": "c", "tracks": "t", "oops": 1}')
     with pytest.raises(ValueError, match="unknown keys"):
         SessionConfig.load(tmp_path)
+    (tmp_path / "session.json").write_text('{"name": "x", "source": "tracks", "calibration": "c", "tracks": "t", "stage_config": [1, 2]}')
+    with pytest.raises(ValueError, match=r"session\.stage_config must be an object of per-stage settings .*got list"):
+        SessionConfig.load(tmp_path)
