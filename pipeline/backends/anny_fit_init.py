@@ -11,7 +11,7 @@ import roma
 import torch
 
 from pipeline.backends.anny_fk import SparseKeypoints, forward_kinematics, keypoints_from_bones
-from pipeline.backends.anny_model import AnnyBody
+from pipeline.backends.anny_model import PHENOTYPE_LABELS, AnnyBody
 from pipeline.backends.fit_common import (
     SHAPE_LIMBS,
     TORSO,
@@ -55,7 +55,11 @@ IK_DRIVERS: tuple[tuple[str, str], ...] = (
 
 
 def fit_shapes(body: AnnyBody, observations: list[PersonObservations], cfg: FitConfig) -> torch.Tensor:
-    """(persons, 6) phenotypes minimising the limb-length differences to the observations."""
+    """(persons, 6) phenotypes minimising the limb-length differences to the observations.
+
+    Bone lengths say little about girth, so ``muscle`` and ``weight`` are held near
+    ``cfg.girth_prior`` (weight ``cfg.girth_prior_weight``); the other phenotypes have a
+    weak pull (1e-4) towards anny's average."""
     lengths, weights = zip(*(_observed_lengths(o) for o in observations), strict=True)
     L = torch.as_tensor(np.stack(lengths), dtype=body.dtype)
     W = torch.as_tensor(np.stack(weights), dtype=body.dtype)
@@ -63,6 +67,11 @@ def fit_shapes(body: AnnyBody, observations: list[PersonObservations], cfg: FitC
     ib = torch.as_tensor(joint_idx(tuple(b for _, b in SHAPE_LIMBS)))
     u = torch.zeros(len(observations), 6, dtype=body.dtype, requires_grad=True)
     eye = torch.eye(3, dtype=body.dtype)
+    centre = torch.full((6,), 0.5, dtype=body.dtype)
+    prior_w = torch.full((6,), 1e-4, dtype=body.dtype)
+    for label, value in zip(("muscle", "weight"), cfg.girth_prior, strict=True):
+        centre[PHENOTYPE_LABELS.index(label)] = value
+        prior_w[PHENOTYPE_LABELS.index(label)] = cfg.girth_prior_weight
 
     def rest_keypoints(shape: torch.Tensor) -> torch.Tensor:
         coeffs = body.shape_coeffs(shape)
@@ -75,7 +84,7 @@ def fit_shapes(body: AnnyBody, observations: list[PersonObservations], cfg: FitC
         shape = torch.sigmoid(u)
         kp = rest_keypoints(shape)
         model_len = (kp[:, ia] - kp[:, ib]).norm(dim=-1)
-        return (W * (model_len - L).square()).sum() + 1e-4 * (shape - 0.5).square().sum()
+        return (W * (model_len - L).square()).sum() + (prior_w * (shape - centre).square()).sum()
 
     run_lbfgs([u], closure, cfg.shape_iters, cfg)
     return torch.sigmoid(u).detach()

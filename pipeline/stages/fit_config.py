@@ -134,6 +134,18 @@ class FitConfig:
     shape_iters: int = 60
     """L-BFGS iterations of the shape initialisation from bone lengths."""
 
+    girth_prior: tuple[float, float] = (0.5, 0.5)
+    """anny ``muscle`` and ``weight`` phenotypes the shape is held near (0.5 = anny's
+    average adult). Keypoints give bone lengths, not girth: left free, these two moved
+    to their bounds to shave millimetres off the limb lengths (synthetic bout: muscle
+    0.00, weight 0.97-0.999, an obese body ~1.4x as wide as an average one, whose
+    overlaps in clinches the physics stage then had to undo). Raise muscle for
+    athletic builds when known."""
+
+    girth_prior_weight: float = 1.0
+    """Weight of ``(phenotype - girth_prior)²`` for muscle and weight in the shape
+    initialisation (the limb-length term is in m²; the other phenotypes keep 1e-4)."""
+
     pose_iters_3d: int = 30
     """L-BFGS iterations of the first pose pass (3D term, priors and smoothness only)."""
 
@@ -198,6 +210,10 @@ class FitConfig:
                 raise ValueError(f"FitConfig.{name} must be positive, got {getattr(self, name)}")
         if self.gm_sigma_px <= 0:
             raise ValueError(f"FitConfig.gm_sigma_px must be positive, got {self.gm_sigma_px}")
+        if len(self.girth_prior) != 2 or not all(0.0 <= v <= 1.0 for v in self.girth_prior):
+            raise ValueError(f"FitConfig.girth_prior must be (muscle, weight) in [0, 1], got {self.girth_prior}")
+        if not self.girth_prior_weight >= 0:  # also refuses NaN
+            raise ValueError(f"FitConfig.girth_prior_weight must be >= 0, got {self.girth_prior_weight}")
         if not 0 <= self.min_conf_2d < 1:
             raise ValueError(f"FitConfig.min_conf_2d must be in [0, 1), got {self.min_conf_2d}")
         if self.precision not in ("float32", "float64"):

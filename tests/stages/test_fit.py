@@ -58,7 +58,8 @@ def test_recovers_known_shape_and_pose_from_clean_keypoints(motion: AnnyMotion) 
     kp3d, tracks, assoc = _inputs(rig, [motion])
     # regularisers (which bias a fit of exact data) nearly off
     cfg = FitConfig(
-        calibrate_landmarks=False, w_accel=0.0, w_smooth=1e-6, w_reg=1e-5, shape_iters=100, pose_iters=150
+        calibrate_landmarks=False, w_accel=0.0, w_smooth=1e-6, w_reg=1e-5, shape_iters=100, pose_iters=150,
+        girth_prior_weight=1e-4,
     )
     res = run(kp3d, tracks, assoc, rig, cfg)
     assert isinstance(res, FitResult)
@@ -73,6 +74,28 @@ def test_recovers_known_shape_and_pose_from_clean_keypoints(motion: AnnyMotion) 
     assert np.linalg.norm(got - want, axis=-1).mean() < 0.01
     assert np.abs(bf.root_translation_m[:, 0] - motion.root_m).max() < 0.02
     assert res.metrics["reproj_err_px"] < 2.0
+
+
+def test_shape_keeps_girth_near_its_prior(motion: AnnyMotion) -> None:
+    """Bone lengths do not tell girth: muscle and weight stay at ``girth_prior`` while the
+    length-giving phenotypes fit the limbs (free, they ran to their bounds: an obese body)."""
+    from pipeline.backends.anny_fit_init import fit_shapes
+    from pipeline.backends.anny_model import PHENOTYPE_LABELS
+    from pipeline.backends.fit_common import PersonObservations
+
+    obs = PersonObservations(
+        kp3d_m=motion.keypoints_m, w3d=np.ones(motion.keypoints_m.shape[:2]),
+        uv_px=np.zeros((0, *motion.keypoints_m.shape[:2], 2)), w2d=np.zeros((0, *motion.keypoints_m.shape[:2])),
+    )
+    girth = [PHENOTYPE_LABELS.index("muscle"), PHENOTYPE_LABELS.index("weight")]
+    for prior in ((0.5, 0.5), (0.8, 0.3)):
+        shape = fit_shapes(anny_body(), [obs], FitConfig(girth_prior=prior)).numpy()[0]
+        np.testing.assert_allclose(shape[girth], prior, atol=0.03)
+        got = _joint_centres(shape, motion.pose_aa[:1], motion.root_m[:1])
+        want = _joint_centres(motion.shape, motion.pose_aa[:1], motion.root_m[:1])
+        assert np.linalg.norm(got - want, axis=-1).mean() < 0.02  # the skeleton still fits
+    free = fit_shapes(anny_body(), [obs], FitConfig(girth_prior_weight=0.0)).numpy()[0]
+    assert np.abs(free[girth] - 0.5).max() > 0.05  # without the prior, girth moves off it
 
 
 def test_robust_loss_ignores_an_outlier_view(motion: AnnyMotion) -> None:
@@ -145,6 +168,10 @@ def test_config_validation() -> None:
         FitConfig(accel_adapt_after=-1)
     with pytest.raises(ValueError, match="accel_adapt_scale_m"):
         FitConfig(accel_adapt_scale_m=0.0)
+    with pytest.raises(ValueError, match=r"girth_prior must be \(muscle, weight\) in \[0, 1\]"):
+        FitConfig(girth_prior=(0.5, 1.5))
+    with pytest.raises(ValueError, match="girth_prior_weight must be >= 0, got nan"):
+        FitConfig(girth_prior_weight=float("nan"))
     # session.json values arrive untyped: a wrong type is refused with the field named
     with pytest.raises(ValueError, match=r"accel_adapt_after must be int, got '100' \(str\)"):
         FitConfig(accel_adapt_after="100")  # type: ignore[arg-type]
