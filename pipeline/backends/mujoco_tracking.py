@@ -146,6 +146,9 @@ class TrackingCost:
         self._nf = nf
         self._root_rot_dofs = [np.arange(p.qvel_adr + 3, p.qvel_adr + 6) for p in layout.persons]
         self._root_damping0 = [model.dof_damping[d].copy() for d in self._root_rot_dofs]
+        P = len(layout.persons)
+        self.residual_on = False
+        self._tau_lim, self._kp_rot, self._kd_rot = np.zeros(P), np.zeros(P), np.zeros(P)
         self._feet = [
             [[p.site_ids[f"{side}_{n}"] for n in FOOT_SITES if f"{side}_{n}" in p.site_ids] for side in ("left", "right")]
             for p in layout.persons
@@ -244,14 +247,14 @@ class TrackingCost:
             inertia = np.array([p.mass_kg * 0.15**2 for p in self.layout.persons])
             self._kd_rot = 2.0 * np.sqrt(self._kp_rot * inertia)
         for i, dofs in enumerate(self._root_rot_dofs):
-            extra = self._kd_rot[i] if on and hasattr(self, "_kd_rot") else 0.0
+            extra = self._kd_rot[i] if on else 0.0
             self.model.dof_damping[dofs] = self._root_damping0[i] + extra
 
     def _root_torque_parts(self, qpos: np.ndarray, qvel: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
         """(explicit, implicit) residual root torques (persons, 3), world frame, N·m."""
         P = len(self.layout.persons)
         expl, impl = np.zeros((P, 3)), np.zeros((P, 3))
-        if not getattr(self, "residual_on", False):
+        if not self.residual_on:
             return expl, impl
         tr = self._t(t)
         R = np.zeros(9)
@@ -281,7 +284,7 @@ class TrackingCost:
     def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int) -> None:
         """Apply the explicit part of the residual root torque of the current state
         (no-op when off; the damping part is the joint's)."""
-        if not getattr(self, "residual_on", False):
+        if not self.residual_on:
             return
         tau, _ = self._root_torque_parts(data.qpos, data.qvel, t)
         for i, p in enumerate(self.layout.persons):
