@@ -367,6 +367,19 @@ def skeleton_from_bodyfit(
         a_ax = heads[bone[bones[0]]] - o
         b_ax = tails[bone[bones[-1]]] - o
         pts = verts[vbody == i] - o
+        if n.endswith("_foot") and len(pts) >= 4:
+            # The fit's landmark offsets may put the heel/toe keypoints below anny's sole
+            # (the detector's "toe" is not anny's); in the simulation the sole is what meets
+            # the floor, so foot points are lifted onto the sole right under them (the lowest
+            # foot vertices within 3 cm in x-y: the sole curves up at the toes and the heel,
+            # and a foot rolled onto its toes must not push the toe points into the floor).
+            # They may still lie a few mm beyond the mesh's outline (in front of the toes, out
+            # at the little toe), so the foot's hull is taken around them too: no foot point
+            # can then pass below the part of the body that stands on the floor.
+            foot_keys = [k for k in (f"{n[: -len('_foot')]}_{p}" for p in ("heel", "big_toe", "small_toe")) if k in sites]
+            for k in foot_keys:
+                sites[k] = np.array([sites[k][0], sites[k][1], max(float(sites[k][2]), _sole_under(pts, sites[k]))])
+            pts = np.vstack([pts, *(sites[k][None] for k in foot_keys)])
         geoms: list[GeomDef] = []
         vol = 0.0
         if len(pts) >= 4:
@@ -392,15 +405,6 @@ def skeleton_from_bodyfit(
                     geoms.append(_capsule_of_volume(half, 0.5 * hv, np.array([0.0, 0.0, 1.0])))
             else:
                 geoms.append(_capsule_of_volume(hull_v, hv))
-        if n.endswith("_foot") and len(pts) >= 4:
-            # The fit's landmark offsets may put the heel/toe keypoints below anny's sole
-            # (the detector's "toe" is not anny's); in the simulation the sole is what meets
-            # the floor, so foot points are lifted onto the sole right under them (the lowest
-            # foot vertices within 3 cm in x-y: the sole curves up at the toes and the heel,
-            # and a foot rolled onto its toes must not push the toe points into the floor).
-            for k in (f"{n[: -len('_foot')]}_{p}" for p in ("heel", "big_toe", "small_toe")):
-                if k in sites:
-                    sites[k] = np.array([sites[k][0], sites[k][1], max(float(sites[k][2]), _sole_under(pts, sites[k]))])
         bsites = tuple((k, _t(v)) for k, v in sites.items() if SITE_BODY[k] == n)
         rel = o - (origin[parent] if parent else o)
         bodies.append(BodyDef(n, parent, _t(rel), () if not parent else _joints(n, jh), tuple(geoms), bsites))

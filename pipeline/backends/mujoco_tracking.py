@@ -46,12 +46,12 @@ class CostWeights:
     w_collision: float = 20.0
     """w4: squared inter-person penetration depth (m²)."""
     world_frac: float = 0.5
-    w_skate: float = 10.0
-    """Squared horizontal velocity (m²/s²) of the foot points of feet planted in the
-    reference (no sliding of stance feet)."""
     """Share of w2 given to world-frame joint positions (the rest: body frame).
     Body-frame residuals alone (the paper's) leave foot placement to the single
     root-position residual; world-frame ones pull each foot to where it was seen."""
+    w_skate: float = 10.0
+    """Squared horizontal velocity (m²/s²) of the foot points of feet planted in the
+    reference (no sliding of stance feet)."""
 
 
 @dataclass(frozen=True)
@@ -75,10 +75,10 @@ class Reference:
     qvel: np.ndarray
     ctrl: np.ndarray
     root_torque_ff: np.ndarray | None = None
-    foot_contact: np.ndarray | None = None
-    """(frames, persons, 2) planted left/right feet of the reference, or None."""
     """(frames, persons, 3) world-frame residual root torque (N·m) the reference
     needs beyond what the feet can supply (inverse dynamics), or None."""
+    foot_contact: np.ndarray | None = None
+    """(frames, persons, 2) planted left/right feet of the reference, or None."""
 
 
 def _root_frames(layout: SceneLayout, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -255,3 +255,29 @@ def test_foot_points_are_lifted_onto_the_sole(bout: tuple[BodyFit, Keypoints3D])
         for name in ("heel", "big_toe", "small_toe"):
             assert sites[f"{side}_{name}"][2] >= zmin - 1e-9
         assert min(sites[f"{side}_{n}"][2] for n in ("heel", "big_toe", "small_toe")) < zmin + 0.02
+
+
+def test_foot_hull_contains_the_foot_points(bout: tuple[BodyFit, Keypoints3D]) -> None:
+    """A toe keypoint the fit places beyond anny's toes (3 cm further along the foot) is
+    still inside the foot's collision hull, so it cannot pass below the floor while the
+    sole stands on it; the other foot points are inside too."""
+    from scipy.spatial import ConvexHull
+
+    bf, kp = bout
+    xyz = kp.xyz_m.copy()
+    for side in ("left", "right"):
+        heel, toe = COCO17_FEET.index(f"{side}_heel"), COCO17_FEET.index(f"{side}_big_toe")
+        along = xyz[:, :, toe] - xyz[:, :, heel]
+        xyz[:, :, toe] += 0.03 * along / np.linalg.norm(along, axis=-1, keepdims=True)
+    plain = skeleton_from_bodyfit(bf, 0, kp, "mesh")
+    sk = skeleton_from_bodyfit(bf, 0, kp.replace(xyz_m=xyz), "mesh")
+    for side in ("left", "right"):
+        hull = ConvexHull(np.array(sk.body(f"{side}_foot").geoms[0].vertices_m))
+        sites = dict(sk.body(f"{side}_foot").sites)
+        for name in ("heel", "big_toe", "small_toe"):
+            outside = hull.equations[:, :3] @ np.array(sites[f"{side}_{name}"]) + hull.equations[:, 3]
+            assert outside.max() <= 1e-9, f"{side}_{name} is {outside.max() * 1000:.1f} mm outside the foot hull"
+        # ... which had to grow for it: the moved toe is beyond the hull of the plain fit.
+        before = ConvexHull(np.array(plain.body(f"{side}_foot").geoms[0].vertices_m))
+        toe = np.array(sites[f"{side}_big_toe"])
+        assert (before.equations[:, :3] @ toe + before.equations[:, 3]).max() > 0.01
