@@ -86,6 +86,11 @@ class ILQRConfig:
     """Centred differences (2× cost, agree with forward ones to ~5e-6)."""
     deriv_every: int = 2
     """Compute A, B every k steps and interpolate linearly in between."""
+    jacobian_reuse: int = 1
+    """Iterations that share one set of dynamics Jacobians: with k > 1, A and B are
+    recomputed at iterations 1, k + 1, 2k + 1, … and reused in between, where only the
+    cost derivatives are recomputed along the new nominal (the line search still rolls
+    out the true dynamics, so the cost keeps decreasing monotonically)."""
     max_backtracks: int = 6
     """Failed backward/line-search attempts (μ raised each time) before an iteration gives up."""
     rel_tol: float = 1e-3
@@ -97,6 +102,11 @@ class ILQRConfig:
     """Line-search candidates rolled out together on this many threads (each on its own
     ``MjData``; MuJoCo releases the GIL while it steps, the Python cost does not).
     1 = one after the other."""
+
+    def __post_init__(self) -> None:
+        for name in ("deriv_every", "jacobian_reuse", "substeps", "rollout_threads", "n_alpha"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"ILQRConfig.{name} must be >= 1, got {getattr(self, name)}")
 
 
 @dataclass
@@ -227,8 +237,12 @@ def linearise(
     cfg: ILQRConfig,
     active: np.ndarray,
     t0: int = 0,
+    dynamics: Linearisation | None = None,
 ) -> Linearisation:
-    """Dynamics Jacobians and cost derivatives along ``traj`` (see module docstring)."""
+    """Dynamics Jacobians and cost derivatives along ``traj`` (see module docstring).
+
+    ``dynamics``: a previous linearisation whose A, B are reused (only the cost
+    derivatives are recomputed; ``ILQRConfig.jacobian_reuse``)."""
     H = traj.ctrl.shape[0]
     nv, nu = model.nv, model.nu
     nx, na = 2 * nv, active.size
@@ -258,7 +272,7 @@ def linearise(
         if u is not None:
             lin.lu[t] = lu[active]
             lin.luu[t] = luu[np.ix_(active, active)]
-            if t in knots:
+            if t in knots and dynamics is None:
                 c0 = tick()
                 _set_state(model, data, traj.qpos[t], traj.qvel[t], traj.warmstart[t])
                 cost.prepare(model, data, t0 + t)
@@ -273,6 +287,9 @@ def linearise(
                 lin.A[t] = A_t
                 lin.B[t] = B_t[:, active]
                 lin.seconds_fd += tick() - c0
+    if dynamics is not None:
+        lin.A, lin.B = dynamics.A, dynamics.B
+        return lin
     for a, b in zip(knots[:-1], knots[1:], strict=True):
         for t in range(a + 1, b):
             w = (t - a) / (b - a)
@@ -368,9 +385,11 @@ def optimise(
         alphas = np.logspace(0.0, np.log10(cfg.alpha_min), cfg.n_alpha)
         mu = cfg.mu_init
         it = 0
+        lin: Linearisation | None = None
         while it < cfg.max_iter:
             it += 1
-            lin = linearise(model, data, cost, nominal, cfg, act, t0=t0)
+            reuse = lin if (it - 1) % cfg.jacobian_reuse else None
+            lin = linearise(model, data, cost, nominal, cfg, act, t0=t0, dynamics=reuse)
             secs["derivatives_fd"] += lin.seconds_fd
             secs["derivatives_cost"] += lin.seconds_cost
             improved = False

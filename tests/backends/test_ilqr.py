@@ -206,3 +206,56 @@ def test_collision_term_separates_overlapping_capsules() -> None:
     assert depth_end.size == 0 or depth_end.max() < 0.1 * depth_passive.max()
     # Axis distance (initially 0.12 m) reaches the sum of radii (0.2 m).
     assert 0.12 + res.traj.qpos[-1, 1] - res.traj.qpos[-1, 0] > 0.195
+
+
+def _count_fd_calls(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    calls = [0]
+    fd = mujoco.mjd_transitionFD
+
+    def counted(*args: object) -> None:
+        calls[0] += 1
+        fd(*args)
+
+    monkeypatch.setattr(mujoco, "mjd_transitionFD", counted)
+    return calls
+
+
+@pytest.mark.parametrize("reuse", [1, 2, 3])
+def test_jacobian_reuse_keeps_the_descent_and_skips_finite_differences(monkeypatch: pytest.MonkeyPatch, reuse: int) -> None:
+    model = mujoco.MjModel.from_xml_string(ARM_XML)
+    data = mujoco.MjData(model)
+    cost = TipCost(np.array([0.3, 0.0, 1.45]))
+    calls = _count_fd_calls(monkeypatch)
+    cfg = ILQRConfig(max_iter=9, rel_tol=0.0, deriv_every=2, jacobian_reuse=reuse)
+    res = optimise(model, data, cost, np.zeros(2), np.zeros(2), np.zeros((30, 2)), cfg)
+    hist = np.array(res.cost_history)
+    assert np.all(np.diff(hist) <= 1e-12)
+    assert hist[-1] < 0.2 * hist[0]
+    # Fresh Jacobians only at iterations 1, reuse + 1, 2 reuse + 1, ...: 16 knots each
+    # (every 2nd of 30 steps, plus the last).
+    fresh = len(range(1, res.iterations + 1, reuse))
+    assert calls[0] == 16 * fresh
+
+
+def test_reused_jacobians_are_the_previous_ones_with_fresh_cost_derivatives() -> None:
+    model = mujoco.MjModel.from_xml_string(ARM_XML)
+    data = mujoco.MjData(model)
+    cost = TipCost(np.array([0.3, 0.0, 1.45]))
+    cfg = ILQRConfig(deriv_every=2)
+    a = rollout(model, data, cost, np.zeros(2), np.zeros(2), np.zeros((20, 2)))
+    b = rollout(model, data, cost, np.zeros(2), np.zeros(2), np.full((20, 2), 3.0))
+    act = np.arange(model.nu)
+    lin_a = linearise(model, data, cost, a, cfg, act)
+    lin_b = linearise(model, data, cost, b, cfg, act)
+    reused = linearise(model, data, cost, b, cfg, act, dynamics=lin_a)
+    assert reused.seconds_fd == 0.0
+    np.testing.assert_array_equal(reused.A, lin_a.A)
+    np.testing.assert_array_equal(reused.B, lin_a.B)
+    np.testing.assert_array_equal(reused.lx, lin_b.lx)
+    np.testing.assert_array_equal(reused.lxx, lin_b.lxx)
+    assert not np.allclose(lin_a.lx, lin_b.lx)
+
+
+def test_ilqr_config_refuses_zero_reuse() -> None:
+    with pytest.raises(ValueError, match="jacobian_reuse must be >= 1"):
+        ILQRConfig(jacobian_reuse=0)
