@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from pipeline.schema.config_types import check_field_types
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import BodyFit, PhysicsResult
 
@@ -167,6 +168,7 @@ class PhysicsConfig:
     """Foot-contact term: squared horizontal speed of feet planted in the reference."""
 
     def __post_init__(self) -> None:
+        check_field_types(self)  # values from Python callers; session.json goes through build_config
         if not (1 <= self.commit <= self.window):
             raise ValueError(f"PhysicsConfig: need 1 <= commit <= window, got commit={self.commit}, window={self.window}")
         if self.rollout_threads < 1:

@@ -118,6 +118,11 @@ def test_floor_settings_reach_the_mjcf_and_bad_ones_are_refused() -> None:
         PhysicsConfig(floor_solimp=(1.5, 0.9, 0.001))
     with pytest.raises(ValueError, match="floor_margin_m"):
         PhysicsConfig(floor_margin_m=-0.01)
+    # A wrong type from a Python caller names the field (it was a bare TypeError from "<").
+    with pytest.raises(ValueError, match=r"PhysicsConfig\.floor_margin_m must be float, got '0\.01' \(str\)"):
+        PhysicsConfig(floor_margin_m="0.01")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"PhysicsConfig\.jacobian_reuse must be int"):
+        PhysicsConfig(jacobian_reuse=2.0)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="rollout_threads"):
         PhysicsConfig(rollout_threads=0)
 
