@@ -248,8 +248,8 @@ def linearise(
     nx, na = 2 * nv, active.size
     tick = time.perf_counter
     lin = Linearisation(
-        A=np.zeros((H, nx, nx)),
-        B=np.zeros((H, nx, na)),
+        A=np.zeros((H, nx, nx)) if dynamics is None else dynamics.A,
+        B=np.zeros((H, nx, na)) if dynamics is None else dynamics.B,
         lx=np.zeros((H + 1, nx)),
         lu=np.zeros((H, na)),
         lxx=np.zeros((H + 1, nx, nx)),
@@ -288,7 +288,6 @@ def linearise(
                 lin.B[t] = B_t[:, active]
                 lin.seconds_fd += tick() - c0
     if dynamics is not None:
-        lin.A, lin.B = dynamics.A, dynamics.B
         return lin
     for a, b in zip(knots[:-1], knots[1:], strict=True):
         for t in range(a + 1, b):
