@@ -10,6 +10,7 @@ from pipeline.evaluate.physics_metrics import (
     foot_contact_from_height,
     inter_person_penetration_mm,
     physics_metrics,
+    point_weights,
     segment_distance,
 )
 from pipeline.schema.joints import COCO17_FEET
@@ -101,3 +102,34 @@ def test_foot_contact_from_height_and_shape_check() -> None:
     assert c[:, 0].all() and c[:2, 1, 1].all() and not c[2:, 1, 1].any()
     with pytest.raises(ValueError, match="foot_contact shape"):
         physics_metrics(kp, foot_contact=np.ones((4, 2, 3), bool))
+
+
+def test_proxy_points_joint_midpoint_and_fraction() -> None:
+    names = ("a", "b", "c")
+    assert point_weights("b", names) == ([1], [1.0])
+    assert point_weights("mid:a+c", names) == ([0, 2], [0.5, 0.5])
+    idx, w = point_weights("frac:a,b,1.25", names)  # a quarter past b
+    assert idx == [0, 1] and w == pytest.approx([-0.25, 1.25])
+    with pytest.raises(ValueError, match="frac:a,x,0.5"):
+        point_weights("frac:a,x,0.5", names)
+    with pytest.raises(ValueError, match="frac:a,b"):
+        point_weights("frac:a,b", names)
+
+
+def test_glove_sphere_sits_past_the_wrist() -> None:
+    """Two persons whose wrists are 20 cm apart along the forearm line, gloves facing:
+    the gloves (6.5 cm past the wrists) overlap; wrist spheres would not."""
+    n = len(COCO17_FEET)
+    xyz = np.zeros((1, 2, n, 3))
+    xyz[..., 2] = 10.0  # everything else far away, stacked per person
+    xyz[0, 1, :, 2] = 20.0
+    ie, iw = COCO17_FEET.index("right_elbow"), COCO17_FEET.index("right_wrist")
+    xyz[0, 0, ie] = [-0.36, 0.0, 1.0]
+    xyz[0, 0, iw] = [-0.10, 0.0, 1.0]
+    xyz[0, 1, ie] = [0.36, 0.0, 1.0]
+    xyz[0, 1, iw] = [0.10, 0.0, 1.0]
+    kp = _kp(xyz)
+    proxy = CapsuleProxy(segments=(("frac:right_elbow,right_wrist,1.25", "frac:right_elbow,right_wrist,1.25", 0.065),))
+    pen = inter_person_penetration_mm(kp, proxy)
+    # glove centres at x = -0.035 and +0.035: 70 mm apart, radii 130 mm -> 60 mm overlap
+    assert pen[0] == pytest.approx(60.0, abs=1e-6)
