@@ -54,6 +54,9 @@ log = logging.getLogger(__name__)
 DENSITY_KG_M3 = 985.0
 MIN_BODY_MASS_KG = 0.3
 """Lightest body (a 0.07 kg collar destabilised the video-rate step in a probe)."""
+GLOVE_RADIUS_M = 0.065
+"""Radius of the gloved fist (a 12-16 oz boxing glove is ~13 cm across); its mass is the
+sphere's volume at the body density (~1.1 kg: hand and glove)."""
 HULL_SLACK = 0.10
 """A hull may exceed its segment's closed volume by this fraction before it is shrunk."""
 
@@ -321,11 +324,14 @@ def skeleton_from_bodyfit(
     keypoints: Keypoints3D | None = None,
     geometry: Literal["mesh", "capsule"] = "mesh",
     decimate: bool = True,
+    glove_radius_m: float = GLOVE_RADIUS_M,
 ) -> Skeleton:
     """Rest-pose physics skeleton of one person of an anny ``BodyFit`` (see module docstring).
 
     ``person_index`` indexes ``bodyfit.person_ids``; ``keypoints`` (the fit's ``Keypoints3D``)
     places the sites; ``decimate`` uses the 1,229-vertex mesh for the hulls (full mesh: 13,718).
+    ``glove_radius_m`` > 0 gives each hand a boxing glove instead of its mesh (``_glove``);
+    0 keeps anny's open hand.
     Raises ``ValueError`` for a non-anny fit, a bad index or an unknown geometry.
     """
     if bodyfit.body_model != "anny":
@@ -387,7 +393,9 @@ def skeleton_from_bodyfit(
                 vol = hull_volume_m3(pts)
             except ValueError:
                 vol = 0.0
-        if vol * DENSITY_KG_M3 < MIN_BODY_MASS_KG:
+        if n.endswith("_hand") and glove_radius_m > 0:
+            geoms.append(_glove(heads[bone[bones[0]]] - o, tails[bone[bones[-1]]] - o, glove_radius_m))
+        elif vol * DENSITY_KG_M3 < MIN_BODY_MASS_KG:
             # Too light (clavicles): a capsule along the body's bones with the minimum mass.
             geoms.append(_capsule_for_mass(a_ax, b_ax, MIN_BODY_MASS_KG))
         else:
@@ -423,6 +431,13 @@ def skeleton_from_bodyfit(
         "sole_offset": 0.0,
     }
     return Skeleton(bodies=tuple(bodies), lengths_m=lengths, pelvis_height_m=float(pelvis0[2]))
+
+
+def _glove(wrist: np.ndarray, hand_tip: np.ndarray, radius_m: float) -> GeomDef:
+    """A boxing glove: a sphere of ``radius_m`` around the fist, its centre one radius past
+    the wrist along the hand (body frame). anny's rest hand is open and flat, reaching
+    12-20 cm past the wrist; a gloved fist is a ball."""
+    return GeomDef("sphere", _t(wrist + _unit(hand_tip - wrist) * radius_m), (0.0, 0.0, 0.0), radius_m)
 
 
 def _sole_under(foot_pts: np.ndarray, site: np.ndarray, radius_m: float = 0.03) -> float:

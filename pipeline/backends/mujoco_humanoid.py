@@ -12,7 +12,13 @@ torque limits proportional to body mass. The optimised control is the servo targ
 angle; the applied torque is ``clip(kp (u - q) - kv q̇, ±limit)``. Pure torque
 motors at the video rate (dt = 1/50 s) diverge; implicit PD damping + armature does
 not (``tests/backends/test_humanoid.py::test_random_servo_targets_stay_stable``),
-with two MuJoCo substeps per video frame.
+with two MuJoCo substeps per video frame (the defaults use four). Between video frames
+the optimiser moves the targets along the reference (``mujoco_schedule``).
+
+Contacts: every geom touches the floor and the other athletes' geoms, except, by
+default, arm against arm of two athletes (``inter_person_arm_contacts``; those overlaps
+are removed from the reference instead, see ``PhysicsConfig.arm_contacts``). Within a
+person, parent/child, sibling and grandparent bodies do not collide.
 
 The root (``p{pid}_root_x/y/z`` slides + ``p{pid}_root`` ball) is kinematically a
 free joint with the same qpos/qvel layout (xyz, quat_wxyz / world linear velocity,
@@ -41,7 +47,9 @@ GRAVITY = 9.81
 
 @dataclass(frozen=True)
 class HumanoidConfig:
-    """How the humanoids and the scene are built."""
+    """How the humanoids and the scene are built. The defaults are the physics stage's
+    (``pipeline.stages.physics.humanoid_config(PhysicsConfig())``; a test keeps them
+    equal), so that a scene built here behaves as the stage's."""
 
     density_kg_m3: float = DENSITY_KG_M3
     """Body density used for every geom's mass (the paper's 985 kg/m³)."""
@@ -60,9 +68,9 @@ class HumanoidConfig:
     """Passive joint damping (N·m·s/rad)."""
     residual_root: bool = True
     """Add the (disabled) residual root position servos, for the fallback."""
-    residual_force_frac: float = 1.0
+    residual_force_frac: float = 2.0
     """Force limit of each residual servo as a fraction of body weight."""
-    residual_saturation_m: float = 0.02
+    residual_saturation_m: float = 0.01
     """Root position error at which a residual servo reaches its force limit."""
     self_collision: Literal["adjacent_filtered", "none"] = "adjacent_filtered"
     """``adjacent_filtered``: a person's parts collide except parent/child, siblings
@@ -72,10 +80,10 @@ class HumanoidConfig:
     body_friction: float = 1.0
     """Sliding friction of the other body geoms: contacts between the two athletes use
     it (skin, sweat, gloves), contacts of a body part with the floor the floor's."""
-    floor_margin_m: float = 0.0
+    floor_margin_m: float = 0.008
     """Floor contact margin: the soft contact settles ~2-3 mm into its margin, so
     soles rest on z ≈ 0 instead of sinking into the floor."""
-    floor_solref: tuple[float, float] = (0.02, 1.0)
+    floor_solref: tuple[float, float] = (0.01, 1.0)
     """MuJoCo ``solref`` of floor contacts: (time constant s, damping ratio), or
     (−stiffness, −damping) when negative (see MuJoCo's solver parameters)."""
     floor_solimp: tuple[float, float, float] = (0.9, 0.95, 0.001)
@@ -84,10 +92,16 @@ class HumanoidConfig:
     body_solref_timeconst_s: float = 0.02
     """Contact time constant of body geoms (inter-person contacts); softer than the
     soles' (0.02 s) so that overlapping athletes are pushed apart gently."""
-    substeps: int = 2
+    substeps: int = 4
     """MuJoCo steps per video frame: timestep = 1 / (fps · substeps). At 50 fps, one
     step (20 ms) is only stable with torque limits ≤ ~3 N·m/kg, too weak to track
-    boxing footwork; two steps (10 ms) are stable at 6 N·m/kg."""
+    boxing footwork; two steps (10 ms) are stable at 6 N·m/kg. Four (the stage's) allow a
+    floor twice as stiff, and keep two gloved humanoids started inside each other stable
+    under random targets, which two did not (``tests/backends/test_anny_humanoid.py``)."""
+    inter_person_arm_contacts: bool = False
+    """Whether the arms (upper arms, forearms, hands) of two different persons collide
+    with each other (``PhysicsConfig.arm_contacts``). Their other contacts (arm-trunk,
+    arm-head, trunk-trunk, legs, ...) are always simulated."""
     solver_iterations: int = 20
     """Constraint solver iterations per step (Newton)."""
     person_spacing_m: float = 2.0
@@ -273,6 +287,8 @@ def build_scene_mjcf(
         if cfg.self_collision == "adjacent_filtered":
             excludes += [f'    <exclude body1="p{pid}_{a_}" body2="p{pid}_{b_}"/>' for a_, b_ in _excluded_pairs(skel)]
     fr = cfg.friction
+    if not cfg.inter_person_arm_contacts:
+        excludes += _arm_arm_excludes(skeletons, person_ids)
     asset_xml = f"  <asset>\n{chr(10).join(assets)}\n  </asset>\n" if assets else ""
     return f"""<mujoco model="cornerman_scene">
   <compiler angle="radian" autolimits="true"/>
@@ -305,6 +321,21 @@ def build_scene_mjcf(
   </actuator>
 </mujoco>
 """
+
+
+ARM_BODIES = tuple(f"{side}_{b}" for side in ("left", "right") for b in ("upper_arm", "forearm", "hand"))
+"""Bodies whose contacts with the other athlete's arms ``inter_person_arm_contacts`` drops."""
+
+
+def _arm_arm_excludes(skeletons: list[Skeleton], person_ids: list[int]) -> list[str]:
+    """``<exclude>`` lines for every pair of arm bodies of two different persons."""
+    out = []
+    for i, (pa, ska) in enumerate(zip(person_ids, skeletons, strict=True)):
+        arms_a = [b.name for b in ska.bodies if b.name in ARM_BODIES]
+        for pb, skb in zip(person_ids[i + 1 :], skeletons[i + 1 :], strict=True):
+            arms_b = [b.name for b in skb.bodies if b.name in ARM_BODIES]
+            out += [f'    <exclude body1="p{pa}_{a}" body2="p{pb}_{b}"/>' for a in arms_a for b in arms_b]
+    return out
 
 
 def load_model(mjcf: str) -> mujoco.MjModel:

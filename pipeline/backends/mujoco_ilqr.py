@@ -47,8 +47,11 @@ class Cost(Protocol):
     respect to the tangent state (2·nv) and the full control (nu).
     """
 
-    def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int) -> None:
-        """Set state-dependent external inputs (``xfrc_applied``) before step t."""
+    def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, sub: int = 0) -> None:
+        """Before MuJoCo substep ``sub`` of control step t: set state-dependent external
+        inputs (``xfrc_applied``) and, optionally, time-dependent offsets of the
+        controls: the caller sets ``data.ctrl`` to u_t before every call, so an offset
+        added here lasts one substep."""
         ...
 
     def value(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, u: np.ndarray | None) -> float: ...
@@ -193,15 +196,16 @@ def rollout(
         u = np.where(limited, np.clip(u, lo, hi), u)
         out.ctrl[t] = u
         data.ctrl[:] = u
-        cost.prepare(model, data, t0 + t)
+        cost.prepare(model, data, t0 + t, 0)
         # step1 computes the position/velocity stages of x_t (sites, contacts, qvel
         # still = v_t), where the running cost is evaluated; step2 integrates.
         mujoco.mj_step1(model, data)
         out.costs[t] = cost.value(model, data, t0 + t, u)
         mujoco.mj_step2(model, data)
         out.actuator_force[t] = data.actuator_force
-        for _ in range(substeps - 1):
-            cost.prepare(model, data, t0 + t)
+        for sub in range(1, substeps):
+            data.ctrl[:] = u
+            cost.prepare(model, data, t0 + t, sub)
             mujoco.mj_step(model, data)
         ok = np.all(np.isfinite(data.qvel)) and np.abs(data.qvel).max() < MAX_SPEED
         if not (ok and data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number == bad0):
@@ -275,13 +279,16 @@ def linearise(
             if t in knots and dynamics is None:
                 c0 = tick()
                 _set_state(model, data, traj.qpos[t], traj.qvel[t], traj.warmstart[t])
-                cost.prepare(model, data, t0 + t)
+                data.ctrl[:] = u
+                cost.prepare(model, data, t0 + t, 0)
                 mujoco.mjd_transitionFD(model, data, cfg.fd_eps, cfg.fd_centered, Ab, Bb, None, None)
                 A_t, B_t = Ab.copy(), Bb.copy()
-                for _ in range(cfg.substeps - 1):
-                    # Chain rule over substeps with the control held: x' = f(f(x, u), u).
+                for sub in range(1, cfg.substeps):
+                    # Chain rule over substeps with the control held: x' = f(f(x, u), u)
+                    # (plus the cost's time-dependent offsets, which do not depend on u).
                     mujoco.mj_step(model, data)
-                    cost.prepare(model, data, t0 + t)
+                    data.ctrl[:] = u
+                    cost.prepare(model, data, t0 + t, sub)
                     mujoco.mjd_transitionFD(model, data, cfg.fd_eps, cfg.fd_centered, Ab, Bb, None, None)
                     A_t, B_t = Ab @ A_t, Ab @ B_t + Bb
                 lin.A[t] = A_t

@@ -183,6 +183,12 @@ def optimise_bout(
 
     bw = np.array([p.mass_kg * 9.81 for p in lay.persons])
 
+    def active(with_residual: bool) -> np.ndarray:
+        # The residual servos' targets are optimised too when they act: the optimiser can
+        # then move a root away from the other athlete instead of the residual pinning it
+        # to a reference that overlaps him.
+        return np.concatenate([servo, resid]) if with_residual else servo
+
     def set_residual(on: bool) -> None:
         m.opt.disableactuator = (base_disable & ~res_bit) if on else (base_disable | res_bit)
         cost.set_residual(on, cfg.residual_torque_frac * bw * 0.3, cfg.residual_rot_saturation_rad)
@@ -194,21 +200,22 @@ def optimise_bout(
             H = min(cfg.window, F - 1 - s)
             u0 = ref.ctrl[s : s + H].copy()
             nc = min(carry.shape[0], H)
-            u0[:nc, servo] = carry[:nc, servo]
+            both = np.concatenate([servo, resid])
+            u0[:nc, both] = carry[:nc, both]
             use_res = cfg.residual == "always" and resid.size > 0
             set_residual(use_res)
-            res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg, servo, s, warm)
+            res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg, active(use_res), s, warm)
             if res_or_none is None and cfg.residual != "off" and resid.size and not use_res:
                 use_res = True
                 set_residual(True)
-                res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg, servo, s, warm)
+                res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg, active(True), s, warm)
             if res_or_none is None:
                 # Last resort: restart this window from the reference state.
                 log.warning("physics: window at frame %d diverges from the simulated state; reset to the reference", s)
                 sol.resets += 1
                 qpos0 = lift_off_floor(scene, separate_persons(scene, ref.qpos[s]))
                 qvel0, warm = ref.qvel[s].copy(), None
-                res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [ref.ctrl[s : s + H]], cfg, servo, s, warm)
+                res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [ref.ctrl[s : s + H]], cfg, active(use_res), s, warm)
                 if res_or_none is None:
                     # Keep the job alive: these frames hold the reference, reported as such.
                     C = _committed_frames(s, H, F, cfg.commit)
@@ -236,7 +243,7 @@ def optimise_bout(
                         sol.seconds[k_] += v_
                     sol.iterations += res.iterations
                     set_residual(True)
-                    res2 = _first_stable(m, d, cost, qpos0, qvel0, [res.traj.ctrl], cfg, servo, s, warm)
+                    res2 = _first_stable(m, d, cost, qpos0, qvel0, [res.traj.ctrl], cfg, active(True), s, warm)
                     if res2 is not None and res2.traj.total < res.traj.total:
                         res, use_res = res2, True
                     else:
@@ -295,8 +302,10 @@ def deepest_inter_person_mm(contacts: FrameContacts, n_frames: int) -> np.ndarra
 
 def contacts_and_sites(scene: Scene, qpos: np.ndarray, qvel: np.ndarray) -> tuple[FrameContacts, np.ndarray]:
     """Contacts of every frame (inter-person and ground) and the site positions
-    (frames, persons, sites, 3)."""
-    m, lay = scene.model, scene.layout
+    (frames, persons, sites, 3). Contacts come from ``scene.probe_model()``: every pair
+    of the athletes' geoms, also those the simulation leaves out (arm-arm), so that
+    overlap the simulation did not prevent is still reported."""
+    m, lay = scene.probe_model(), scene.layout
     d = mujoco.MjData(m)
     F = qpos.shape[0]
     names = tuple(m.body(b).name for b in range(m.nbody))

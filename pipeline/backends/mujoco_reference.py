@@ -1,49 +1,40 @@
-"""The kinematic reference the physics stage tracks, and the scene it lives in.
+"""The kinematic reference the physics stage tracks.
 
-Scene compilation (``build_scene``), per-frame inverse kinematics of the 3D joints
-onto the humanoids' sites, contact-consistent clean-up of that reference (planted
-feet held still at the sole height, overlapping athletes separated) and the
-inverse-dynamics feed-forward of the servos (ground reactions distributed over the
-feet; what they cannot supply is the residual root wrench).
+Per-frame inverse kinematics of the 3D joints onto the humanoids' sites, made
+contact-consistent (planted feet held still and flat on the floor, overlapping athletes
+separated: ``mujoco_separation``), and the servo targets with inverse-dynamics
+feed-forward (per substep: ``mujoco_schedule``; ground reactions on the feet, what they
+cannot supply is the residual root wrench). The scene itself is ``mujoco_scene``
+(``Scene`` and ``build_scene`` are re-exported here).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import mujoco
 import numpy as np
 
-from pipeline.backends.humanoid_skeleton import Skeleton, sole_height_m
-from pipeline.backends.mujoco_humanoid import (
-    HumanoidConfig,
-    SceneLayout,
-    build_scene_mjcf,
-    load_model,
-    scene_layout,
-)
-from pipeline.backends.mujoco_tracking import FOOT_SITES, Reference, collision_depths
+from pipeline.backends.humanoid_skeleton import sole_height_m
+from pipeline.backends.mujoco_humanoid import SceneLayout
+from pipeline.backends.mujoco_scene import Scene, build_scene
+from pipeline.backends.mujoco_schedule import contact_inverse_dynamics_point, foot_site_ids, servo_schedule
+from pipeline.backends.mujoco_separation import separate_persons, separate_reference
+from pipeline.backends.mujoco_tracking import FOOT_SITES, Reference
+
+__all__ = [
+    "Scene",
+    "build_reference",
+    "build_scene",
+    "contact_inverse_dynamics",
+    "inverse_kinematics",
+    "lift_off_floor",
+    "plant_feet",
+    "reference_velocity",
+    "separate_persons",
+    "separate_reference",
+    "servo_feedforward",
+    "site_targets",
+]
 from pipeline.schema.keypoints3d import Keypoints3D
-
-
-@dataclass(frozen=True)
-class Scene:
-    mjcf: str
-    model: mujoco.MjModel
-    layout: SceneLayout
-    person_ids: tuple[int, ...]
-    site_names: tuple[str, ...]
-    site_ids: np.ndarray  # (persons, sites)
-
-
-def build_scene(skeletons: list[Skeleton], person_ids: list[int], fps: float, joint_names: tuple[str, ...], cfg: HumanoidConfig) -> Scene:
-    """Compile the scene and map ``joint_names`` to sites of every person."""
-    mjcf = build_scene_mjcf(skeletons, person_ids, fps, cfg)
-    model = load_model(mjcf)
-    layout = scene_layout(model, person_ids)
-    names = tuple(n for n in joint_names if n in layout.persons[0].site_ids)
-    ids = np.array([[p.site_ids[n] for n in names] for p in layout.persons], dtype=np.int64)
-    return Scene(mjcf, model, layout, tuple(person_ids), names, ids)
 
 
 def _servo_qpos(model: mujoco.MjModel, layout: SceneLayout) -> np.ndarray:
@@ -74,15 +65,26 @@ def inverse_kinematics(
     iters_first: int = 60,
     iters: int = 10,
     damping: float = 1e-3,
+    flat: np.ndarray | None = None,
+    sole_lift_m: float = 0.0,
+    flat_weight: float = 100.0,
 ) -> np.ndarray:
     """Per-frame damped least squares of sites onto targets, warm-started in time.
 
     targets: (frames, persons, sites, 3) world; weight: (frames, persons, sites).
-    Returns qpos (frames, nq), hinge angles clamped to their ranges.
+    ``flat`` (frames, persons, 2): feet (left, right) that must stand flat on the floor
+    in that frame: the foot body's z axis vertical (its sole, flat at rest, parallel to
+    the floor) and its sole ``sole_lift_m`` above z = 0, with weight ``flat_weight``
+    (sites: their confidence). A planted foot's keypoints alone leave it tilted by
+    ~5° (up to 10°) and ~7 mm up, which the simulated foot, flat on the floor, fights
+    by rocking on its sole. Returns qpos (frames, nq), hinge angles clamped to their
+    ranges.
     """
     m, lay = scene.model, scene.layout
     d = mujoco.MjData(m)
     F, P, S = weight.shape
+    feet = _foot_rest_heights(scene) if flat is not None else []
+    jacr = np.zeros((3, m.nv))
     q = m.qpos0.copy()
     for i, p in enumerate(lay.persons):
         ok = weight[:, i].sum(axis=-1) > 0
@@ -113,11 +115,55 @@ def inverse_kinematics(
                     mujoco.mj_jacSite(m, d, jac, None, sid)
                     JtJ += w * jac.T @ jac
                     Jtr += w * jac.T @ r
+                for k_side in (0, 1):
+                    if flat is None or not flat[f, i, k_side]:
+                        continue
+                    body, h0 = feet[i][k_side]
+                    mujoco.mj_jacBody(m, d, jac, jacr, body)
+                    z_axis = d.xmat[body].reshape(3, 3)[:, 2]
+                    # d(z_axis) = omega x z_axis = -[z_axis]x J_r dq; keep its x, y rows.
+                    Jt = (-_skew(z_axis) @ jacr)[:2] * FLAT_LEVER_M
+                    rt = z_axis[:2] * FLAT_LEVER_M
+                    rh = d.xpos[body, 2] - (h0 + sole_lift_m)
+                    JtJ += flat_weight * (Jt.T @ Jt + np.outer(jac[2], jac[2]))
+                    Jtr += flat_weight * (Jt.T @ rt + jac[2] * rh)
             lam = damping * (10.0 if (f == 0 and it < 10) else 1.0)
             dq[:] = -np.linalg.solve(JtJ + lam * np.eye(m.nv) + 1e-6 * np.diag(np.diag(JtJ)), Jtr)
             mujoco.mj_integratePos(m, q, dq, 1.0)
             q[hq] = np.clip(q[hq], lo, hi)
         out[f] = q
+    return out
+
+
+FLAT_LEVER_M = 0.1
+"""Length that turns a foot's tilt (rad) into the metres of the IK's residuals."""
+
+
+def _skew(a: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def _foot_rest_heights(scene: Scene) -> list[list[tuple[int, float]]]:
+    """Per person and side (left, right): the foot body id and the height of its origin
+    above its sole (the lowest point of its geoms when the foot is level)."""
+    m = scene.model
+    d = mujoco.MjData(m)
+    d.qpos[:] = m.qpos0
+    mujoco.mj_fwdPosition(m, d)
+    floor = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+    out = []
+    for p in scene.layout.persons:
+        sides = []
+        for side in ("left", "right"):
+            body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"p{p.person_id}_{side}_foot")
+            if body < 0:
+                raise ValueError(f"inverse_kinematics: person {p.person_id} has no {side}_foot body")
+            geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] == body]
+            gap = min(mujoco.mj_geomDistance(m, d, g, floor, 1.0, None) for g in geoms)
+            if not np.all(np.abs(d.xmat[body].reshape(3, 3) - np.eye(3)) < 1e-6):
+                raise ValueError(f"inverse_kinematics: the {side}_foot of person {p.person_id} is not level at rest")
+            sides.append((body, float(d.xpos[body, 2] - gap)))
+        out.append(sides)
     return out
 
 
@@ -143,9 +189,23 @@ def site_targets(scene: Scene, kp: Keypoints3D, person_rows: list[int]) -> tuple
 
 
 def build_reference(
-    scene: Scene, kp: Keypoints3D, person_rows: list[int], plant: bool = True, separate: bool = True
+    scene: Scene,
+    kp: Keypoints3D,
+    person_rows: list[int],
+    plant: bool = True,
+    separate: bool = True,
+    substeps: int = 0,
+    flat_feet: bool = False,
+    sole_lift_m: float = 0.0,
+    ff_friction: float = 0.3,
 ) -> tuple[Reference, np.ndarray, np.ndarray]:
     """IK reference + body-frame targets. Returns (reference, targets_world, weight).
+
+    With ``substeps`` > 0 the reference carries a per-substep servo schedule
+    (``mujoco_schedule.servo_schedule``: the reference interpolated between frames, with
+    inverse-dynamics feed-forward whose ground reactions are on the planted feet);
+    with 0, per-frame servo targets with feed-forward from smoothed accelerations
+    (``servo_feedforward``, the scheme before the schedule).
 
     With ``plant``, planted feet are held still and lifted to the sole height
     (``mujoco_tracking.plant_feet``) before the IK. With ``separate``, each frame of
@@ -160,7 +220,7 @@ def build_reference(
         targets, contact = plant_feet(targets, weight, scene.site_names, kp.fps, sole)
     else:
         contact = None
-    qref = inverse_kinematics(scene, targets, weight)
+    qref = inverse_kinematics(scene, targets, weight, flat=contact if flat_feet else None, sole_lift_m=sole_lift_m)
     F, P, S = weight.shape
     if separate and P > 1:
         qref = separate_reference(scene, qref)
@@ -175,30 +235,18 @@ def build_reference(
                 targets[f, i] = d.site_xpos[scene.site_ids[i]]
             R = d.xmat[p.root_body].reshape(3, 3)
             local[f, i] = (targets[f, i] - d.xpos[p.root_body]) @ R
-    ctrl, root_torque = servo_feedforward(scene, qref, vref, kp.fps)
+    schedule = None
+    if substeps > 0 and F > 1:
+        schedule = servo_schedule(m, lay, qref, kp.fps, substeps, contact, friction=ff_friction)
+        vref = schedule.qvel[:, 0].copy()
+        ctrl, root_torque = schedule.ctrl[:, 0].copy(), schedule.root_torque[:, 0].copy()
+    else:
+        ctrl, root_torque = servo_feedforward(scene, qref, vref, kp.fps)
     ref = Reference(
         site_ids=scene.site_ids, site_local_m=local, site_world_m=targets, site_weight=weight, qpos=qref, qvel=vref,
-        ctrl=ctrl, root_torque_ff=root_torque, foot_contact=contact,
+        ctrl=ctrl, root_torque_ff=root_torque, foot_contact=contact, schedule=schedule,
     )
     return ref, targets, weight
-
-
-def separate_reference(scene: Scene, qref: np.ndarray, smooth_frames: float = 2.0, clearance_m: float = 0.01) -> np.ndarray:
-    """``separate_persons`` on every frame; the corrections (tangent space) are
-    smoothed in time so that the separated reference stays smooth."""
-    from scipy.ndimage import gaussian_filter1d
-
-    m = scene.model
-    F = qref.shape[0]
-    delta = np.zeros((F, m.nv))
-    for f in range(F):
-        mujoco.mj_differentiatePos(m, delta[f], 1.0, qref[f], separate_persons(scene, qref[f], clearance_m=clearance_m))
-    if F > 2 and smooth_frames > 0:
-        delta = gaussian_filter1d(delta, smooth_frames, axis=0, mode="nearest")
-    out = qref.copy()
-    for f in range(F):
-        mujoco.mj_integratePos(m, out[f], delta[f], 1.0)
-    return out
 
 
 def servo_feedforward(scene: Scene, qref: np.ndarray, vref: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
@@ -223,46 +271,6 @@ def servo_feedforward(scene: Scene, qref: np.ndarray, vref: np.ndarray, fps: flo
     lo, hi = m.actuator_ctrlrange[acts, 0], m.actuator_ctrlrange[acts, 1]
     ctrl[:, acts] = np.clip(ctrl[:, acts], lo, hi)
     return ctrl, resid[..., 3:]
-
-
-def _separation_cost(scene: Scene) -> np.ndarray:
-    """(nv,) relative cost of moving each DOF when separating persons: legs and
-    root position are expensive (the feet stay where they are), root rotation
-    less so, arms, spine and neck cheap (clinch overlaps are mostly arms)."""
-    m = scene.model
-    w = np.ones(m.nv)
-    for p in scene.layout.persons:
-        w[p.qvel_adr : p.qvel_adr + 3] = 100.0
-        w[p.qvel_adr + 3 : p.qvel_adr + 6] = 10.0
-        for j in range(m.njnt):
-            name = m.joint(j).name
-            if name.startswith(f"p{p.person_id}_") and any(k in name for k in ("_hip_", "_knee", "_ankle_")):
-                w[m.jnt_dofadr[j]] = 100.0
-    return w
-
-
-def separate_persons(
-    scene: Scene, qpos: np.ndarray, iters: int = 20, damping: float = 1e-3, clearance_m: float = 1e-3
-) -> np.ndarray:
-    """Remove inter-person overlap from one configuration by Gauss–Newton on the
-    contact depths (minimal weighted change of the DOFs, legs and root height
-    expensive), so that a simulation does not start from a deep interpenetration
-    (which MuJoCo resolves explosively) and a reference can be made contact-free."""
-    m, lay = scene.model, scene.layout
-    d = mujoco.MjData(m)
-    q = qpos.copy()
-    reg = damping * np.diag(_separation_cost(scene))
-    for _ in range(iters):
-        d.qpos[:] = q
-        mujoco.mj_fwdPosition(m, d)
-        depth, J = collision_depths(m, d, lay.geom_person, True)
-        if depth.size == 0 or depth.max() < 1e-4:
-            break
-        assert J is not None
-        r = depth + clearance_m
-        dq = -np.linalg.solve(J.T @ J + reg, J.T @ r)
-        mujoco.mj_integratePos(m, q, dq, 1.0)
-    return q
 
 
 def lift_off_floor(scene: Scene, qpos: np.ndarray) -> np.ndarray:
@@ -313,20 +321,14 @@ def contact_inverse_dynamics(
     is world force (N) at the pelvis origin and world torque (N·m).
     """
     from scipy.ndimage import gaussian_filter1d
-    from scipy.optimize import nnls
 
     d = mujoco.MjData(model)
     F = qref.shape[0]
     v_s = gaussian_filter1d(vref, smooth_frames, axis=0, mode="nearest") if F > 2 and smooth_frames > 0 else vref
     acc = np.gradient(v_s, 1.0 / fps, axis=0) if F > 1 else np.zeros_like(vref)
-    edges = np.array([[friction, 0, 1], [-friction, 0, 1], [0, friction, 1], [0, -friction, 1]], dtype=float)
-    edges /= np.linalg.norm(edges, axis=1, keepdims=True)
-    feet = []
-    for p in layout.persons:
-        feet.append([p.site_ids[f"{s}_{n}"] for s in ("left", "right") for n in FOOT_SITES if f"{s}_{n}" in p.site_ids])
+    feet = [[s for side in person for s in side] for person in foot_site_ids(layout)]
     out = np.zeros((F, model.nv))
     resid = np.zeros((F, len(layout.persons), 6))
-    jac = np.zeros((3, model.nv))
     saved = int(model.opt.disableflags)
     model.opt.disableflags = saved | int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
     try:
@@ -334,31 +336,9 @@ def contact_inverse_dynamics(
             d.qpos[:] = qref[f]
             d.qvel[:] = vref[f]
             d.qacc[:] = acc[f]
-            mujoco.mj_inverse(model, d)
-            tau = d.qfrc_inverse.copy()
-            for i, p in enumerate(layout.persons):
-                va = p.qvel_adr
-                W = tau[va : va + 6].copy()
-                low = [s for s in feet[i] if d.site_xpos[s, 2] < contact_height_m]
-                if low and W[2] > 0:
-                    jacs = []
-                    for s in low:
-                        mujoco.mj_jacSite(model, d, jac, None, int(s))
-                        jacs.append(jac.copy())
-                    # Columns: generalised force (root part) of a unit force along each cone edge.
-                    A = np.hstack([(J[:, va : va + 6].T @ edges.T) for J in jacs])  # (6, 4k)
-                    # Scaled unknowns c / |W|: the regulariser then only picks among exact solutions.
-                    scale = max(float(np.abs(W).max()), 1.0)
-                    Aa = np.vstack([A, np.sqrt(force_reg) * np.eye(A.shape[1])])
-                    c, _ = nnls(Aa, np.concatenate([W / scale, np.zeros(A.shape[1])]))
-                    c *= scale
-                    for k, J in enumerate(jacs):
-                        fk = edges.T @ c[4 * k : 4 * k + 4]
-                        tau -= J.T @ fk
-                R = d.xmat[p.root_body].reshape(3, 3)
-                resid[f, i, :3] = tau[va : va + 3]
-                resid[f, i, 3:] = R @ tau[va + 3 : va + 6]
-            out[f] = tau
+            mujoco.mj_kinematics(model, d)
+            loaded = [[s for s in person if d.site_xpos[s, 2] < contact_height_m] for person in feet]
+            out[f], resid[f] = contact_inverse_dynamics_point(model, d, layout, loaded, friction, force_reg)
     finally:
         model.opt.disableflags = saved
     return out, resid

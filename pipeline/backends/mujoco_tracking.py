@@ -2,7 +2,7 @@
 
 Cost at step t (x = (q, v), u = servo targets):
 
-    w1 (‖v‖² + ‖u_servo − û‖²)                            L_reg
+    w1 (‖v‖² + ‖u − û‖²)                                  L_reg
   + w2 (Σ_sites c_j [(1−β) ‖R_rootᵀ(s_j − p_root) − ŝ_j^body‖²   L_p, body frame
                      + β ‖s_j − ŝ_j^world‖²]                    (+ world frame, β = world_frac)
         + ‖p_root − p̂_root‖² + (0.3 m)² ‖q_root ⊖ q̂_root‖²)  (+ root placement)
@@ -28,6 +28,7 @@ import mujoco
 import numpy as np
 
 from pipeline.backends.mujoco_humanoid import SceneLayout
+from pipeline.backends.mujoco_schedule import ServoSchedule
 
 ROOT_ROT_LEVER_M = 0.3
 FOOT_SITES = ("heel", "big_toe", "small_toe")
@@ -79,6 +80,10 @@ class Reference:
     needs beyond what the feet can supply (inverse dynamics), or None."""
     foot_contact: np.ndarray | None = None
     """(frames, persons, 2) planted left/right feet of the reference, or None."""
+    schedule: ServoSchedule | None = None
+    """The reference between frames, per substep (``mujoco_schedule.servo_schedule``):
+    ``prepare`` moves the servo targets and the residual root torque along it within a
+    frame. None: both are held for the whole frame."""
 
 
 def _root_frames(layout: SceneLayout, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -103,16 +108,17 @@ def _cross_group_contacts(geom_group: np.ndarray, data: mujoco.MjData) -> list[i
 
 
 def collision_depths(
-    model: mujoco.MjModel, data: mujoco.MjData, geom_group: np.ndarray, with_jac: bool
+    model: mujoco.MjModel, data: mujoco.MjData, geom_group: np.ndarray, with_jac: bool, max_dist_m: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Penetration depths (c,) of contacts between geoms of different groups
     (``geom_group`` (ngeom,): person index, -1 = not a person) and, optionally,
-    their Jacobians (c, nv) with respect to the tangent of qpos.
+    their Jacobians (c, nv) with respect to the tangent of qpos. Contacts up to
+    ``max_dist_m`` apart (within a geom margin) are included, with negative depth.
 
     Uses the contact normal n (geom1 → geom2): ∂dist/∂q = nᵀ (J_body2(p) − J_body1(p)),
     so ∂depth/∂q = −nᵀ (J_body2(p) − J_body1(p)). ``data`` must hold a forward pass.
     """
-    idx = [c for c in _cross_group_contacts(geom_group, data) if data.contact.dist[c] < 0]
+    idx = [c for c in _cross_group_contacts(geom_group, data) if data.contact.dist[c] < max_dist_m]
     depth = np.array([-data.contact.dist[c] for c in idx])
     if not with_jac:
         return depth, None
@@ -149,6 +155,7 @@ class TrackingCost:
         P = len(layout.persons)
         self.residual_on = False
         self._tau_lim, self._kp_rot, self._kd_rot = np.zeros(P), np.zeros(P), np.zeros(P)
+        self._acts = np.concatenate([layout.servo_ids, layout.residual_ids]).astype(np.int64)
         self._feet = [
             [[p.site_ids[f"{side}_{n}"] for n in FOOT_SITES if f"{side}_{n}" in p.site_ids] for side in ("left", "right")]
             for p in layout.persons
@@ -250,25 +257,37 @@ class TrackingCost:
             extra = self._kd_rot[i] if on else 0.0
             self.model.dof_damping[dofs] = self._root_damping0[i] + extra
 
-    def _root_torque_parts(self, qpos: np.ndarray, qvel: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
-        """(explicit, implicit) residual root torques (persons, 3), world frame, N·m."""
+    def _root_torque_parts(self, qpos: np.ndarray, qvel: np.ndarray, t: int, sub: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """(explicit, implicit) residual root torques (persons, 3), world frame, N·m, at
+        substep ``sub`` of frame ``t`` (the reference interpolated there when it has a
+        schedule)."""
         P = len(self.layout.persons)
         expl, impl = np.zeros((P, 3)), np.zeros((P, 3))
         if not self.residual_on:
             return expl, impl
         tr = self._t(t)
+        sch = self.ref.schedule
+        sub = min(max(sub, 0), sch.substeps - 1) if sch is not None else 0
         R = np.zeros(9)
         R_ref = np.zeros(9)
         for i, p in enumerate(self.layout.persons):
             q = qpos[p.qpos_adr + 3 : p.qpos_adr + 7]
+            if sch is not None:
+                q_ref = sch.qpos[tr, sub, p.qpos_adr + 3 : p.qpos_adr + 7]
+                w_loc = sch.qvel[tr, sub, p.qvel_adr + 3 : p.qvel_adr + 6]
+            else:
+                q_ref = self._ref_root[i][1][tr]
+                w_loc = self.ref.qvel[tr, p.qvel_adr + 3 : p.qvel_adr + 6]
             err = np.zeros(3)
-            mujoco.mju_subQuat(err, q, self._ref_root[i][1][tr])
+            mujoco.mju_subQuat(err, q, q_ref)
             mujoco.mju_quat2Mat(R, q)
-            mujoco.mju_quat2Mat(R_ref, self._ref_root[i][1][tr])
+            mujoco.mju_quat2Mat(R_ref, q_ref)
             Rm = R.reshape(3, 3)
-            w_ref = R_ref.reshape(3, 3) @ self.ref.qvel[tr, p.qvel_adr + 3 : p.qvel_adr + 6]
+            w_ref = R_ref.reshape(3, 3) @ w_loc
             tau = -self._kp_rot[i] * (Rm @ err)
-            if self.ref.root_torque_ff is not None:
+            if sch is not None:
+                tau = tau + sch.root_torque[tr, sub, i]
+            elif self.ref.root_torque_ff is not None:
                 tau = tau + self.ref.root_torque_ff[tr, i]
             n = np.linalg.norm(tau)
             expl[i] = (tau if n <= self._tau_lim[i] else tau * (self._tau_lim[i] / n)) + self._kd_rot[i] * w_ref
@@ -281,12 +300,19 @@ class TrackingCost:
         expl, impl = self._root_torque_parts(qpos, qvel, t)
         return expl + impl
 
-    def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int) -> None:
-        """Apply the explicit part of the residual root torque of the current state
-        (no-op when off; the damping part is the joint's)."""
+    def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, sub: int = 0) -> None:
+        """Before substep ``sub`` of frame ``t``: move the servo targets in ``data.ctrl``
+        (the frame's controls, set by the caller) along the reference's schedule, and
+        apply the explicit part of the residual root torque of the current state (when
+        the residual is on; its damping part is the joint's)."""
+        sch = self.ref.schedule
+        if sch is not None and sub > 0:
+            tr = self._t(t)
+            k = min(sub, sch.substeps - 1)
+            data.ctrl[self._acts] += sch.ctrl[tr, k, self._acts] - sch.ctrl[tr, 0, self._acts]
         if not self.residual_on:
             return
-        tau, _ = self._root_torque_parts(data.qpos, data.qvel, t)
+        tau, _ = self._root_torque_parts(data.qpos, data.qvel, t, sub)
         for i, p in enumerate(self.layout.persons):
             data.xfrc_applied[p.root_body, 3:6] = tau[i]
 
@@ -301,7 +327,7 @@ class TrackingCost:
         rs, _ = self._skate(data, t, False)
         c += w.w_skate * float(rs @ rs)
         if u is not None:
-            du = u[self.servo] - ref.ctrl[t, self.servo]
+            du = u[self._acts] - ref.ctrl[t, self._acts]
             c += w.w_reg * float(du @ du)
         return c
 
@@ -332,8 +358,8 @@ class TrackingCost:
         lu = np.zeros(nu)
         luu = np.zeros((nu, nu))
         if u is not None:
-            lu[self.servo] = 2 * w.w_reg * (u[self.servo] - ref.ctrl[t, self.servo])
-            luu[self.servo, self.servo] = 2 * w.w_reg
+            lu[self._acts] = 2 * w.w_reg * (u[self._acts] - ref.ctrl[t, self._acts])
+            luu[self._acts, self._acts] = 2 * w.w_reg
         return lx, lu, lxx, luu
 
 

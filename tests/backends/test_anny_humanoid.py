@@ -281,3 +281,23 @@ def test_foot_hull_contains_the_foot_points(bout: tuple[BodyFit, Keypoints3D]) -
         before = ConvexHull(np.array(plain.body(f"{side}_foot").geoms[0].vertices_m))
         toe = np.array(sites[f"{side}_big_toe"])
         assert (before.equations[:, :3] @ toe + before.equations[:, 3]).max() > 0.01
+
+
+def test_hands_are_boxing_gloves(bout: tuple[BodyFit, Keypoints3D]) -> None:
+    """Each hand is one ball of the glove radius, one radius past the wrist along the
+    hand, with its volume's mass; ``glove_radius_m=0`` keeps anny's open hand (a hull
+    reaching further out)."""
+    bf, kp = bout
+    gloved = skeleton_from_bodyfit(bf, 0, kp, "mesh", glove_radius_m=0.065)
+    bare = skeleton_from_bodyfit(bf, 0, kp, "mesh", glove_radius_m=0.0)
+    for side in ("left", "right"):
+        hand = next(b for b in gloved.bodies if b.name == f"{side}_hand")
+        assert [g.kind for g in hand.geoms] == ["sphere"]
+        g = hand.geoms[0]
+        assert g.radius_m == pytest.approx(0.065)
+        assert np.linalg.norm(g.a_m) == pytest.approx(0.065, abs=1e-9)  # body origin = wrist joint
+        assert g.volume_m3() * DENSITY_KG_M3 == pytest.approx(4 / 3 * np.pi * 0.065**3 * 985.0)
+        open_hand = next(b for b in bare.bodies if b.name == f"{side}_hand").geoms[0]
+        assert open_hand.kind == "mesh"
+        reach = np.linalg.norm(np.array(open_hand.vertices_m), axis=1).max()
+        assert reach > 0.13  # anny's flat hand: fingers 13+ cm past the wrist

@@ -122,9 +122,12 @@ def test_floor_contact_parameters_govern_floor_contacts() -> None:
         np.testing.assert_allclose(con.solref, (0.03, 1.2))
         np.testing.assert_allclose(con.solimp[:3], (0.8, 0.9, 0.002))
         assert con.includemargin == pytest.approx(0.004)
-    # The defaults keep MuJoCo's standard soft floor.
+    # The defaults are the physics stage's floor.
+    from pipeline.stages.physics import PhysicsConfig
+
     default = load_model(build_scene_mjcf([skel], [0], 50.0))
-    np.testing.assert_allclose(default.geom_solref[floor], (0.02, 1.0))
+    np.testing.assert_allclose(default.geom_solref[floor], PhysicsConfig().floor_solref)
+    assert default.geom_margin[floor] == pytest.approx(PhysicsConfig().floor_margin_m)
 
 
 def test_random_servo_targets_stay_stable() -> None:

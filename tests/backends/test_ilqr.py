@@ -40,7 +40,7 @@ class TipCost:
         self.target = target
         self.jac = np.zeros((3, 2))
 
-    def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int) -> None:
+    def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, sub: int = 0) -> None:
         pass
 
     def value(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, u: np.ndarray | None) -> float:
@@ -114,6 +114,45 @@ def test_adjoint_gradient_matches_finite_differences(substeps: int) -> None:
         assert g[t, j] == pytest.approx(fd, rel=1e-3, abs=1e-6)
 
 
+class OffsetTipCost(TipCost):
+    """TipCost whose ``prepare`` moves the controls at every substep by a known,
+    time-dependent offset (as the physics stage's servo schedule does)."""
+
+    def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, sub: int = 0) -> None:
+        data.ctrl[:] += np.array([2.0 * np.sin(t + 0.7 * sub), -1.5 * sub])
+
+
+def test_substep_offsets_are_applied_once_and_differentiated() -> None:
+    """Offsets added by ``prepare`` last one substep (the rollout resets the controls to
+    u_t before each call, so they do not pile up), and the chained Jacobians through
+    the substeps still give the exact gradient of the total cost."""
+    substeps = 3
+    model = mujoco.MjModel.from_xml_string(ARM_XML.replace('timestep="0.02"', f'timestep="{0.02 / substeps}"'))
+    data = mujoco.MjData(model)
+    cost = OffsetTipCost(np.array([0.2, 0.0, 1.5]))
+    U = np.random.default_rng(1).uniform(-3, 3, size=(6, 2))
+    q0, v0 = np.array([0.3, -0.4]), np.zeros(2)
+    traj = rollout(model, data, cost, q0, v0, U, substeps=substeps)
+    # The same simulation by hand: ctrl = u_t + offset(t, sub) at every substep.
+    d = mujoco.MjData(model)
+    d.qpos[:], d.qvel[:] = q0, v0
+    for t in range(U.shape[0]):
+        for sub in range(substeps):
+            d.ctrl[:] = U[t]
+            cost.prepare(model, d, t, sub)
+            mujoco.mj_step(model, d)
+    np.testing.assert_allclose(traj.qpos[-1], d.qpos, atol=1e-12)
+    cfg = ILQRConfig(deriv_every=1, fd_centered=True, substeps=substeps)
+    g = trajectory_gradient(linearise(model, data, cost, traj, cfg, np.arange(2)))
+    eps = 1e-5
+    for t, j in [(0, 0), (2, 1), (5, 0)]:
+        up, um = U.copy(), U.copy()
+        up[t, j] += eps
+        um[t, j] -= eps
+        fd = (rollout(model, data, cost, q0, v0, up, substeps=substeps).total - rollout(model, data, cost, q0, v0, um, substeps=substeps).total) / (2 * eps)
+        assert g[t, j] == pytest.approx(fd, rel=1e-3, abs=1e-6)
+
+
 TWO_CAPSULES_XML = """
 <mujoco>
   <option timestep="0.02" gravity="0 0 0" integrator="implicitfast"/>
@@ -152,7 +191,7 @@ class CollisionOnlyCost:
         mujoco.mj_fwdPosition(self.probe, self.probe_data)
         return collision_depths(self.probe, self.probe_data, self.groups, with_jac)
 
-    def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int) -> None:
+    def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, sub: int = 0) -> None:
         pass
 
     def value(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, u: np.ndarray | None) -> float:

@@ -1,0 +1,51 @@
+"""The physics stage's scene: the athletes' humanoids compiled into one MuJoCo model,
+with index maps, and the same scene with every contact between the athletes (the probe
+the separation and the overlap scores use)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import mujoco
+import numpy as np
+
+from pipeline.backends.humanoid_skeleton import Skeleton
+from pipeline.backends.mujoco_humanoid import (
+    HumanoidConfig,
+    SceneLayout,
+    build_scene_mjcf,
+    load_model,
+    scene_layout,
+)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A compiled scene: ``mjcf`` (what is simulated), its model and index maps, and
+    ``probe_mjcf``: the same scene with every contact between the athletes enabled
+    (``mjcf`` may leave arm-arm contacts out), for separating and scoring overlap."""
+
+    mjcf: str
+    model: mujoco.MjModel
+    layout: SceneLayout
+    person_ids: tuple[int, ...]
+    site_names: tuple[str, ...]
+    site_ids: np.ndarray  # (persons, sites)
+    probe_mjcf: str = ""
+
+    def probe_model(self) -> mujoco.MjModel:
+        """The model of ``probe_mjcf`` (same layout as ``model``)."""
+        return self.model if self.probe_mjcf == self.mjcf else load_model(self.probe_mjcf)
+
+
+def build_scene(skeletons: list[Skeleton], person_ids: list[int], fps: float, joint_names: tuple[str, ...], cfg: HumanoidConfig) -> Scene:
+    """Compile the scene and map ``joint_names`` to sites of every person."""
+    mjcf = build_scene_mjcf(skeletons, person_ids, fps, cfg)
+    probe = mjcf if cfg.inter_person_arm_contacts else build_scene_mjcf(
+        skeletons, person_ids, fps, replace(cfg, inter_person_arm_contacts=True)
+    )
+    model = load_model(mjcf)
+    layout = scene_layout(model, person_ids)
+    names = tuple(n for n in joint_names if n in layout.persons[0].site_ids)
+    ids = np.array([[p.site_ids[n] for n in names] for p in layout.persons], dtype=np.int64)
+    return Scene(mjcf, model, layout, tuple(person_ids), names, ids, probe)

@@ -1,0 +1,210 @@
+"""The physics stage's reference between video frames (``mujoco_schedule``), its flat
+planted feet, the separation of two athletes, gloves and the arm-arm contact switch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco")
+
+from pipeline.backends.humanoid_skeleton import _DEFAULT_LENGTHS, build_skeleton  # noqa: E402
+from pipeline.backends.mujoco_humanoid import HumanoidConfig  # noqa: E402
+from pipeline.backends.mujoco_reference import (  # noqa: E402
+    build_reference,
+    build_scene,
+    inverse_kinematics,
+    separate_reference,
+    site_targets,
+)
+from pipeline.backends.mujoco_schedule import (  # noqa: E402
+    contact_inverse_dynamics_point,
+    foot_site_ids,
+    servo_schedule,
+    tangent_path,
+)
+from pipeline.schema.joints import COCO17_FEET  # noqa: E402
+from tests.backends.test_humanoid import _rest_keypoints  # noqa: E402
+from tests.stages.test_physics import _facing_pair  # noqa: E402
+
+FPS = 50.0
+
+
+def _one_person_scene(cfg: HumanoidConfig = HumanoidConfig()):  # type: ignore[no-untyped-def]
+    skel = build_skeleton(dict(_DEFAULT_LENGTHS))
+    return build_scene([skel], [0], FPS, COCO17_FEET, cfg)
+
+
+def _swinging_joints(model: mujoco.MjModel) -> list[int]:
+    """qpos addresses of the shoulder flexion and elbow hinges."""
+    return [
+        int(model.jnt_qposadr[j])
+        for j in range(model.njnt)
+        if any(k in model.joint(j).name for k in ("shoulder_y", "elbow")) and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
+    ]
+
+
+def _swinging_arms(model: mujoco.MjModel, n_frames: int) -> np.ndarray:
+    """qpos (frames, nq): the rest pose held at pelvis height, both shoulders and elbows
+    swinging fast (a 2.5 Hz, 0.8 rad swing: a few metres per second at the wrist)."""
+    q = np.tile(model.qpos0, (n_frames, 1))
+    t = np.arange(n_frames) / FPS
+    for a in _swinging_joints(model):
+        j = int(np.flatnonzero(model.jnt_qposadr == a)[0])
+        q[:, a] = model.jnt_range[j].mean() + 0.4 * np.sin(2 * np.pi * 2.5 * t)
+    return q
+
+
+def _track(scene, qref: np.ndarray, schedule, per_substep: bool) -> float:  # type: ignore[no-untyped-def]
+    """Open-loop tracking of ``qref`` with the root held by the residual servos, contacts
+    off: the mean angle error (rad) of the swinging hinges over the frames."""
+    m = scene.model
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    m.opt.disableactuator = 0  # residual root servos on
+    d = mujoco.MjData(m)
+    d.qpos[:] = qref[0]
+    d.qvel[:] = schedule.qvel[0, 0]
+    S = schedule.substeps
+    hinge = _swinging_joints(m)
+    err = []
+    for f in range(qref.shape[0] - 1):
+        for k in range(S):
+            d.ctrl[:] = schedule.ctrl[f, k if per_substep else 0]
+            mujoco.mj_step(m, d)
+        err.append(np.abs(d.qpos[hinge] - qref[f + 1, hinge]).mean())
+    return float(np.mean(err))
+
+
+def test_schedule_interpolates_the_reference_between_frames() -> None:
+    scene = _one_person_scene()
+    m = scene.model
+    qref = _swinging_arms(m, 40)
+    sch = servo_schedule(m, scene.layout, qref, FPS, 4, planted=None)
+    # Substep 0 is the frame itself; the path through the frames is continuous.
+    np.testing.assert_allclose(sch.qpos[:, 0], qref, atol=1e-9)
+    path = tangent_path(m, sch.qpos.reshape(-1, m.nq))
+    assert np.abs(np.diff(path, axis=0)).max() < 0.05
+    assert sch.ctrl.shape == (40, 4, m.nu) and sch.root_torque.shape == (40, 4, 1, 3)
+
+
+def test_servo_targets_between_frames_track_fast_limbs_better() -> None:
+    """Targets that move at every substep (with their feed-forward) follow a fast swing;
+    targets held for the whole video frame lag behind it."""
+    scene = _one_person_scene()
+    qref = _swinging_arms(scene.model, 40)
+    sch = servo_schedule(scene.model, scene.layout, qref, FPS, 4, planted=None)
+    moving = _track(_one_person_scene(), qref, sch, per_substep=True)
+    held = _track(_one_person_scene(), qref, sch, per_substep=False)
+    assert moving < 0.35 * held  # measured 0.0078 against 0.033 rad
+    assert moving < 0.015
+
+
+def test_ground_reactions_load_only_the_planted_feet() -> None:
+    """A person standing still: with both feet loaded the feet carry the weight (no
+    residual); with only the left foot loaded, the right leg's hinge torques are the
+    same as with no foot loaded (it only holds its own weight), and the left foot then
+    carries all of it."""
+    scene = _one_person_scene()
+    m, lay = scene.model, scene.layout
+    d = mujoco.MjData(m)
+    d.qpos[:] = m.qpos0
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
+    feet = foot_site_ids(lay)[0]
+    tau_both, res_both = contact_inverse_dynamics_point(m, d, lay, [feet[0] + feet[1]])
+    tau_left, _ = contact_inverse_dynamics_point(m, d, lay, [feet[0]])
+    tau_none, res_none = contact_inverse_dynamics_point(m, d, lay, [[]])
+    weight = lay.persons[0].mass_kg * 9.81
+    assert np.linalg.norm(res_both[0, :3]) < 0.02 * weight
+    assert res_none[0, 2] == pytest.approx(weight, rel=1e-3)
+    right_leg = [m.jnt_dofadr[j] for j in range(m.njnt) if m.joint(j).name.startswith("p0_right_") and any(
+        k in m.joint(j).name for k in ("hip", "knee", "ankle"))]
+    assert right_leg
+    np.testing.assert_allclose(tau_left[right_leg], tau_none[right_leg], atol=1e-6)
+    assert np.abs(tau_both[right_leg] - tau_none[right_leg]).max() > 1.0  # loaded: it pushes
+
+
+def test_planted_feet_stand_flat_on_the_floor() -> None:
+    """A planted foot whose keypoints say it is tilted (heel 3 cm up) comes out of the
+    inverse kinematics level, its sole at the requested height; without ``flat`` it
+    follows the keypoints' tilt."""
+    kp = _rest_keypoints(1.0, n_frames=3)
+    xyz = kp.xyz_m.copy()
+    xyz[:, 0, COCO17_FEET.index("left_heel"), 2] += 0.03
+    kp = kp.replace(xyz_m=xyz)
+    scene = build_scene([build_skeleton(dict(_DEFAULT_LENGTHS))], [0], FPS, COCO17_FEET, HumanoidConfig())
+    targets, weight = site_targets(scene, kp, [0])
+    flat = np.zeros((3, 1, 2), dtype=bool)
+    flat[:, 0, 0] = True
+    m = scene.model
+    foot = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "p0_left_foot")
+    d = mujoco.MjData(m)
+
+    def tilt_deg(q: np.ndarray) -> float:
+        d.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        return float(np.degrees(np.arccos(np.clip(d.xmat[foot].reshape(3, 3)[2, 2], -1.0, 1.0))))
+
+    level = inverse_kinematics(scene, targets, weight, flat=flat, sole_lift_m=0.005)
+    tilted = inverse_kinematics(scene, targets, weight)
+    assert tilt_deg(level[-1]) < 1.0
+    assert tilt_deg(tilted[-1]) > 3.0
+    d.qpos[:] = level[-1]
+    mujoco.mj_fwdPosition(m, d)
+    floor = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+    gap = min(mujoco.mj_geomDistance(m, d, g, floor, 1.0, None) for g in range(m.ngeom) if m.geom_bodyid[g] == foot)
+    assert gap == pytest.approx(0.005, abs=1.5e-3)
+
+
+def test_separation_leaves_no_overlap_and_stays_smooth() -> None:
+    """Two athletes whose torsos overlap by ~5 cm: the separated reference keeps them
+    ~clearance apart in every frame, and moves each frame by about the same amount."""
+    kp = _facing_pair(0.18, n_frames=12)
+    skel = build_skeleton(dict(_DEFAULT_LENGTHS))
+    scene = build_scene([skel, skel], [0, 1], FPS, COCO17_FEET, HumanoidConfig())
+    targets, weight = site_targets(scene, kp, [0, 1])
+    qref = inverse_kinematics(scene, targets, weight)
+    out = separate_reference(scene, qref, clearance_m=0.01)
+    m = scene.probe_model()
+    d = mujoco.MjData(m)
+    for f in range(out.shape[0]):
+        d.qpos[:] = out[f]
+        mujoco.mj_fwdPosition(m, d)
+        depth = [-d.contact.dist[c] for c in range(d.ncon) if min(scene.layout.geom_person[d.contact.geom[c]]) >= 0
+                 and scene.layout.geom_person[d.contact.geom[c][0]] != scene.layout.geom_person[d.contact.geom[c][1]]]
+        assert max(depth, default=0.0) < 0.003
+    m_sim = scene.model
+    moved = np.zeros((out.shape[0], m_sim.nv))
+    for f in range(out.shape[0]):
+        mujoco.mj_differentiatePos(m_sim, moved[f], 1.0, qref[f], out[f])
+    size = np.linalg.norm(moved, axis=1)
+    assert size.min() > 0.02  # every frame had to change (5 cm of overlap)
+    assert np.abs(np.diff(moved, axis=0)).max() < 0.1 * size.max()  # and changes smoothly
+
+
+def test_arm_contacts_between_athletes_are_left_out_of_the_simulation_only() -> None:
+    """With ``inter_person_arm_contacts`` off (the default) the simulated model excludes
+    every arm-arm pair of the two athletes, while the probe model (separation, reported
+    contacts) keeps them; arm-trunk contacts stay in both."""
+    skel = build_skeleton(dict(_DEFAULT_LENGTHS))
+    scene = build_scene([skel, skel], [0, 1], FPS, COCO17_FEET, HumanoidConfig())
+    assert 'body1="p0_left_forearm" body2="p1_right_forearm"' in scene.mjcf
+    assert 'p0_left_forearm" body2="p1_' not in scene.probe_mjcf
+    assert 'body1="p0_left_forearm" body2="p1_torso"' not in scene.mjcf
+    on = build_scene([skel, skel], [0, 1], FPS, COCO17_FEET, HumanoidConfig(inter_person_arm_contacts=True))
+    assert on.probe_mjcf == on.mjcf and 'p0_left_forearm" body2="p1_' not in on.mjcf
+
+
+def test_humanoid_defaults_are_the_physics_stage_defaults() -> None:
+    from pipeline.stages.physics import PhysicsConfig, humanoid_config
+
+    assert humanoid_config(PhysicsConfig()) == HumanoidConfig()
+
+
+def test_reference_carries_its_schedule() -> None:
+    kp = _rest_keypoints(1.0, n_frames=6)
+    scene = build_scene([build_skeleton(dict(_DEFAULT_LENGTHS))], [0], FPS, COCO17_FEET, HumanoidConfig())
+    ref, _, _ = build_reference(scene, kp, [0], substeps=4, flat_feet=True, sole_lift_m=0.007)
+    assert ref.schedule is not None and ref.schedule.ctrl.shape == (6, 4, scene.model.nu)
+    np.testing.assert_allclose(ref.ctrl, ref.schedule.ctrl[:, 0])
+    held, _, _ = build_reference(scene, kp, [0], substeps=0)
+    assert held.schedule is None
