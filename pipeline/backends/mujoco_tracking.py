@@ -22,6 +22,7 @@ normal n (geom1 → geom2): ∂dist/∂q = nᵀ (J_body2(p) − J_body1(p)).
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import mujoco
@@ -135,8 +136,20 @@ def collision_depths(
 class TrackingCost:
     """Eq. 5 as a :class:`pipeline.backends.mujoco_ilqr.Cost`."""
 
-    def __init__(self, model: mujoco.MjModel, layout: SceneLayout, ref: Reference, weights: CostWeights) -> None:
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        layout: SceneLayout,
+        ref: Reference,
+        weights: CostWeights,
+        probe: mujoco.MjModel | None = None,
+    ) -> None:
+        """``probe``: a model of the same scene whose contacts the collision term reads
+        (``Scene.probe_model``: every pair of the athletes' geoms, also the arm-arm pairs
+        the simulated ``model`` leaves out); None: ``model``'s own contacts."""
         self.model = model
+        self._probe = probe
+        self._probe_data = threading.local()
         self.layout = layout
         self.ref = ref
         self.w = weights
@@ -231,7 +244,16 @@ class TrackingCost:
         return np.concatenate(rs), (np.vstack(js) if with_jac else None)
 
     def _collision(self, data: mujoco.MjData, with_jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        return collision_depths(self.model, data, self.layout.geom_person, with_jac)
+        if self._probe is None:
+            return collision_depths(self.model, data, self.layout.geom_person, with_jac)
+        pd = getattr(self._probe_data, "d", None)
+        if pd is None:  # one per thread: line-search rollouts may run on threads
+            pd = self._probe_data.d = mujoco.MjData(self._probe)
+        pd.qpos[:] = data.qpos
+        mujoco.mj_kinematics(self._probe, pd)
+        mujoco.mj_comPos(self._probe, pd)
+        mujoco.mj_collision(self._probe, pd)
+        return collision_depths(self._probe, pd, self.layout.geom_person, with_jac)
 
     def set_residual(self, on: bool, torque_limit_nm: np.ndarray | None = None, saturation_rad: float = 0.1) -> None:
         """Enable the residual root torque: a PD on each root orientation towards the
