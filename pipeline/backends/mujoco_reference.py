@@ -198,6 +198,7 @@ def build_reference(
     flat_feet: bool = False,
     sole_lift_m: float = 0.0,
     ff_friction: float = 0.3,
+    ff_smooth_frames: float = 0.0,
 ) -> tuple[Reference, np.ndarray, np.ndarray]:
     """IK reference + body-frame targets. Returns (reference, targets_world, weight).
 
@@ -237,7 +238,7 @@ def build_reference(
             local[f, i] = (targets[f, i] - d.xpos[p.root_body]) @ R
     schedule = None
     if substeps > 0 and F > 1:
-        schedule = servo_schedule(m, lay, qref, kp.fps, substeps, contact, friction=ff_friction)
+        schedule = servo_schedule(m, lay, qref, kp.fps, substeps, contact, friction=ff_friction, smooth_frames=ff_smooth_frames)
         vref = schedule.qvel[:, 0].copy()
         ctrl, root_torque = schedule.ctrl[:, 0].copy(), schedule.root_torque[:, 0].copy()
     else:

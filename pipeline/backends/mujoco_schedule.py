@@ -151,6 +151,7 @@ def servo_schedule(
     planted: np.ndarray | None,
     contact_height_m: float = 0.06,
     friction: float = 0.3,
+    smooth_frames: float = 0.0,
 ) -> ServoSchedule:
     """Interpolate ``qref`` (frames, nq) at every substep and compute the servo targets
     (see the module docstring).
@@ -170,11 +171,18 @@ def servo_schedule(
     S = substeps
     nq, nv, nu = model.nq, model.nv, model.nu
     P = len(layout.persons)
-    spline = CubicSpline(np.arange(F), tangent_path(model, qref), axis=0)
+    tpath = tangent_path(model, qref)
+    spline = CubicSpline(np.arange(F), tpath, axis=0)
+    if smooth_frames > 0 and F > 2:
+        from scipy.ndimage import gaussian_filter1d
+
+        dyn = CubicSpline(np.arange(F), gaussian_filter1d(tpath, smooth_frames, axis=0, mode="nearest"), axis=0)
+    else:
+        dyn = spline
     t = np.minimum(np.arange(F * S) / S, F - 1.0)
     path = spline(t)
-    vel = spline(t, 1) * fps
-    acc = spline(t, 2) * fps**2
+    vel = dyn(t, 1) * fps
+    acc = dyn(t, 2) * fps**2
     base = np.repeat(np.arange(F), S)
     qpos = np.zeros((F * S, nq))
     for k in range(F * S):

@@ -51,6 +51,9 @@ class CostWeights:
     """Share of w2 given to world-frame joint positions (the rest: body frame).
     Body-frame residuals alone (the paper's) leave foot placement to the single
     root-position residual; world-frame ones pull each foot to where it was seen."""
+    w_residual: float = 10.0
+    """Squared change (m²) of the residual root servos' targets from the reference's:
+    the optimiser may move a root with the residual, at this price."""
     w_skate: float = 10.0
     """Squared horizontal velocity (m²/s²) of the foot points of feet planted in the
     reference (no sliding of stance feet)."""
@@ -169,6 +172,11 @@ class TrackingCost:
         self.residual_on = False
         self._tau_lim, self._kp_rot, self._kd_rot = np.zeros(P), np.zeros(P), np.zeros(P)
         self._acts = np.concatenate([layout.servo_ids, layout.residual_ids]).astype(np.int64)
+        # Per-control weight of the deviation from the reference's targets: w_reg for the
+        # servos, w_residual for the residual root servos (their use is to be rare).
+        self._u_weight = np.concatenate(
+            [np.full(layout.servo_ids.size, weights.w_reg), np.full(layout.residual_ids.size, weights.w_residual)]
+        )
         self._feet = [
             [[p.site_ids[f"{side}_{n}"] for n in FOOT_SITES if f"{side}_{n}" in p.site_ids] for side in ("left", "right")]
             for p in layout.persons
@@ -350,7 +358,7 @@ class TrackingCost:
         c += w.w_skate * float(rs @ rs)
         if u is not None:
             du = u[self._acts] - ref.ctrl[t, self._acts]
-            c += w.w_reg * float(du @ du)
+            c += float(du @ (self._u_weight * du))
         return c
 
     def derivatives(
@@ -380,8 +388,8 @@ class TrackingCost:
         lu = np.zeros(nu)
         luu = np.zeros((nu, nu))
         if u is not None:
-            lu[self._acts] = 2 * w.w_reg * (u[self._acts] - ref.ctrl[t, self._acts])
-            luu[self._acts, self._acts] = 2 * w.w_reg
+            lu[self._acts] = 2 * self._u_weight * (u[self._acts] - ref.ctrl[t, self._acts])
+            luu[self._acts, self._acts] = 2 * self._u_weight
         return lx, lu, lxx, luu
 
 

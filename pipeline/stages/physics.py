@@ -162,6 +162,15 @@ class PhysicsConfig:
     plans (``mujoco_schedule.servo_schedule``; the floor's is 1.0): a planned force near
     the floor's cone makes the foot slip whenever the simulated load differs; what the
     feet may not supply goes to the residual root wrench."""
+    feedforward_smooth_frames: float = 1.0
+    """Gaussian sigma (frames) of the smoothing of the reference's velocities and
+    accelerations that the inverse-dynamics feed-forward uses (its target positions are
+    not smoothed). Unsmoothed, the per-frame noise of the inverse kinematics, twice
+    differentiated, shook the whole body: a person standing still (rest-pose keypoints
+    with 1 mm of noise) kept its joints moving at 0.56 rad/s RMS and its planted feet
+    sliding 0.7 mm/frame; with 1 frame, 0.18 rad/s and 0.12-0.15 mm/frame. Bouts 0 and 2
+    (multi): skating 0.94 / 1.44 -> 0.77 / 1.20 mm/frame, MPJPE 16.4 / 18.3 -> 16.4 / 18.0
+    mm."""
     floor_margin_m: float = 0.008
     """Floor contact margin (see ``HumanoidConfig.floor_margin_m``): floor contacts act from
     8 mm above the floor, so a foot landing at ~1 m/s (the simulated feet land harder than
@@ -206,6 +215,14 @@ class PhysicsConfig:
     joints are noisy, and at the paper's 0.1 this term outweighs positions ~10×."""
     w_collision: float = 20.0
     """w4 of eq. 5 (squared inter-person penetration depth)."""
+    w_residual: float = 10.0
+    """Squared change (m²) of the residual root servos' targets that the iLQR makes
+    (``CostWeights.w_residual``): 1 cm costs 0.001, a 4 cm overlap 0.03 at ``w_collision``.
+    Bouts 0 / 2 (multi), MPJPE and mean residual: 1 -> 16.0 / 18.1 mm, 1.2 / 1.5 body
+    weights; 10 -> 15.9 / 17.9 mm, 1.1 / 1.5; 1000 -> 16.2 / 18.0 mm, 0.9 / 1.3. Standing
+    still: 1.3 / 0.4 / 0.3 body weights. At 1000 the residual pins the roots where the
+    reference has them, against the contacts: two overlapping athletes tracked without
+    separating the reference first kept 70 % of their overlap (10: 29 %)."""
     w_skate: float = 10.0
     """Foot-contact term: squared horizontal speed of feet planted in the reference."""
 
@@ -227,6 +244,9 @@ class PhysicsConfig:
             raise ValueError(f"PhysicsConfig.floor_solimp must be (d0, dwidth in (0, 1), width > 0), got {self.floor_solimp}")
         if self.glove_radius_m < 0.0:
             raise ValueError(f"PhysicsConfig.glove_radius_m must be >= 0, got {self.glove_radius_m}")
+        for name in ("feedforward_smooth_frames", "w_residual", "w_reg", "w_pos", "w_vel", "w_collision", "w_skate"):
+            if not getattr(self, name) >= 0.0:  # also refuses NaN
+                raise ValueError(f"PhysicsConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not self.feedforward_friction > 0.0:
             raise ValueError(f"PhysicsConfig.feedforward_friction must be > 0, got {self.feedforward_friction}")
         if self.floor_margin_m < 0.0:
@@ -426,7 +446,7 @@ def run(
             jacobian_reuse=cfg.jacobian_reuse,
             rollout_threads=cfg.rollout_threads,
         ),
-        weights=CostWeights(cfg.w_reg, cfg.w_pos, cfg.w_vel, cfg.w_collision, w_skate=cfg.w_skate),
+        weights=CostWeights(cfg.w_reg, cfg.w_pos, cfg.w_vel, cfg.w_collision, w_skate=cfg.w_skate, w_residual=cfg.w_residual),
         residual=cfg.residual_root,
         fallback_tol_m=cfg.fallback_tol_m,
         residual_torque_frac=cfg.residual_force_frac,
@@ -447,6 +467,7 @@ def run(
         ref, targets, weight = mp.build_reference(
             sub, kp, [rows[i] for i in g], separate=cfg.separate_reference, substeps=cfg.substeps if cfg.schedule else 0,
             flat_feet=cfg.flat_feet, sole_lift_m=max(cfg.floor_margin_m - 0.001, 0.0), ff_friction=cfg.feedforward_friction,
+            ff_smooth_frames=cfg.feedforward_smooth_frames,
         )
 
         def prog(d: int, n: int, msg: str, _g: list[int] = g) -> None:
