@@ -199,6 +199,7 @@ def build_reference(
     sole_lift_m: float = 0.0,
     ff_friction: float = 0.3,
     ff_smooth_frames: float = 0.0,
+    separation_clearance_m: float = 0.003,
 ) -> tuple[Reference, np.ndarray, np.ndarray]:
     """IK reference + body-frame targets. Returns (reference, targets_world, weight).
 
@@ -224,7 +225,7 @@ def build_reference(
     qref = inverse_kinematics(scene, targets, weight, flat=contact if flat_feet else None, sole_lift_m=sole_lift_m)
     F, P, S = weight.shape
     if separate and P > 1:
-        qref = separate_reference(scene, qref)
+        qref = separate_reference(scene, qref, clearance_m=separation_clearance_m)
     vref = reference_velocity(m, qref, kp.fps)
     d = mujoco.MjData(m)
     local = np.zeros((F, P, S, 3))

@@ -16,7 +16,7 @@ def separate_reference(
     scene: Scene,
     qref: np.ndarray,
     smooth_frames: float = 2.0,
-    clearance_m: float = 0.01,
+    clearance_m: float = 0.003,
     iters: int = 20,
     damping: float = 1e-3,
     final_smooth_frames: float = 1.0,
