@@ -70,7 +70,7 @@ class HumanoidConfig:
     """Add the (disabled) residual root position servos, for the fallback."""
     residual_force_frac: float = 2.0
     """Force limit of each residual servo as a fraction of body weight."""
-    residual_saturation_m: float = 0.01
+    residual_saturation_m: float = 0.1
     """Root position error at which a residual servo reaches its force limit."""
     self_collision: Literal["adjacent_filtered", "none"] = "adjacent_filtered"
     """``adjacent_filtered``: a person's parts collide except parent/child, siblings
