@@ -38,6 +38,7 @@ from pipeline.backends.anny_fk import SparseKeypoints, keypoints_from_bones
 from pipeline.backends.anny_model import FIT_DTYPES, AnnyBody, anny_fit_body
 from pipeline.backends.anny_priors import joint_limit_penalty, joint_limit_tables, load_pose_prior
 from pipeline.backends.fit_common import ground_term, run_pose_passes, sequence_terms
+from pipeline.backends.fit_contacts import ProxyOverlap
 from pipeline.schema.joints import COCO17_FEET, FOOT_JOINTS
 from pipeline.stages.fit_config import FitConfig
 
@@ -149,6 +150,8 @@ def _fit(
 
     soles = SparseKeypoints(body, heads_p, sole_points(coeffs), weights=sole_w)
 
+    overlap = ProxyOverlap() if cfg.w_overlap > 0 and npers > 1 else None
+    present_t = torch.as_tensor(present.T.copy())
     root0 = torch.as_tensor(T0.reshape(n, 3), dtype=dt).clone()
     with torch.no_grad():
         pose0 = init_limbs(
@@ -229,6 +232,8 @@ def _fit(
         if cfg.w_ground > 0:
             sole_z = soles(G, x, row_person)[..., 2]
             out["ground"] = cfg.w_ground * ground_term(kp, foot, sole_z)
+        if overlap is not None:
+            out["overlap"] = cfg.w_overlap * overlap(kp.reshape(npers, nf, nj, 3), present_t)
         return sum(out.values()), out, kp  # type: ignore[return-value]
 
     accel_w = run_pose_passes(params, evaluate, cfg, npers, nf)

@@ -46,6 +46,7 @@ from pipeline.backends.fit_common import (
     run_pose_passes,
     sequence_terms,
 )
+from pipeline.backends.fit_contacts import ProxyOverlap
 from pipeline.backends.smpl_body import N_BETAS, SmplBody, forward, keypoints, skin, smpl_body
 from pipeline.schema.joints import COCO17_FEET, FOOT_JOINTS
 from pipeline.stages.fit_config import FitConfig
@@ -383,6 +384,8 @@ def _fit(
             kp = kp + (G[:, dom] @ offsets[row_person][..., None])[..., 0]
         return pose, offsets, betas, b_rows, J, G_root, G, x, R_local, kp
 
+    overlap = ProxyOverlap() if cfg.w_overlap > 0 and npers > 1 else None
+    present_t = torch.as_tensor(present.T.copy())
     mesh_velocity = None
     if moments is not None:
         m_ = moments
@@ -410,6 +413,8 @@ def _fit(
         if cfg.w_ground > 0:
             sole_z = skin(soles, b_rows, J, G, x, R_local)[..., 2]
             out["ground"] = cfg.w_ground * ground_term(kp, foot, sole_z)
+        if overlap is not None:
+            out["overlap"] = cfg.w_overlap * overlap(kp.reshape(npers, nf, -1, 3), present_t)
         return sum(out.values()), out, kp  # type: ignore[return-value]
 
     accel_w = run_pose_passes(params, evaluate, cfg, npers, nf)

@@ -115,6 +115,19 @@ class FitConfig:
     """Squared depth below the ground plane z = 0 of the foot keypoints and of 48 sole
     vertices of the mesh (m^2)."""
 
+    w_overlap: float = 3000.0
+    """Squared depth (m²) of the overlap between capsules of two different persons
+    (``fit_contacts.ProxyOverlap``: an average adult's volumes, in boxing gloves), summed
+    over the frames where both are present (ours, not in the paper; 0: off). In clinches
+    and exchanges an arm hidden behind the other athlete has little 2D evidence, and
+    without this term the fit let arms pass through each other and through the trunk.
+    ``cornerman bench fit`` style runs (300 frames, 4 cameras), seeds 0 / 1 / 2, without
+    -> with: deepest overlap 98.9 / 88.9 / 97.4 -> 4.7 / 5.8 / 4.4 mm, mean 5.9 / 6.2 /
+    5.0 -> 0.1 mm, MPJPE 9.46 / 9.89 / 9.75 -> 9.49 / 9.88 / 9.79 mm, acceleration error
+    unchanged (-25.8 / -25.7 / -26.7 -> -25.9 / -26.4 / -26.1 % against filtered
+    triangulation), fit time +10 %; 2 cameras (seed 0, weight 1000): 110 -> 11 mm, MPJPE
+    23.9 -> 23.6 mm."""
+
     gm_sigma_px: float = 25.0
     """Scale of the Geman-McClure function: residuals much larger than this barely count."""
 
@@ -197,6 +210,7 @@ class FitConfig:
             "w_prior",
             "w_limits",
             "w_ground",
+            "w_overlap",
         ):
             if getattr(self, name) < 0:
                 raise ValueError(f"FitConfig.{name} must be >= 0, got {getattr(self, name)}")
