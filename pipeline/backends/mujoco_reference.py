@@ -68,6 +68,7 @@ def inverse_kinematics(
     flat: np.ndarray | None = None,
     sole_lift_m: float = 0.0,
     flat_weight: float = 100.0,
+    restart_tol_m: float = 0.05,
 ) -> np.ndarray:
     """Per-frame damped least squares of sites onto targets, warm-started in time.
 
@@ -77,8 +78,10 @@ def inverse_kinematics(
     the floor) and its sole ``sole_lift_m`` above z = 0, with weight ``flat_weight``
     (sites: their confidence). A planted foot's keypoints alone leave it tilted by
     ~5° (up to 10°) and ~7 mm up, which the simulated foot, flat on the floor, fights
-    by rocking on its sole. Returns qpos (frames, nq), hinge angles clamped to their
-    ranges.
+    by rocking on its sole. A person whose worst site misses its target by more than
+    ``restart_tol_m`` after a frame's iterations is solved again from its rest joint
+    angles, and the better of the two kept. Returns qpos (frames, nq), hinge angles
+    clamped to their ranges.
     """
     m, lay = scene.model, scene.layout
     d = mujoco.MjData(m)
@@ -98,8 +101,9 @@ def inverse_kinematics(
     out = np.zeros((F, m.nq))
     jac = np.zeros((3, m.nv))
     dq = np.zeros(m.nv)
-    for f in range(F):
-        for it in range(iters_first if f == 0 else iters):
+
+    def iterate(q: np.ndarray, f: int, n_iters: int, cold: bool) -> None:
+        for it in range(n_iters):
             d.qpos[:] = q
             mujoco.mj_kinematics(m, d)
             mujoco.mj_comPos(m, d)
@@ -127,10 +131,35 @@ def inverse_kinematics(
                     rh = d.xpos[body, 2] - (h0 + sole_lift_m)
                     JtJ += flat_weight * (Jt.T @ Jt + np.outer(jac[2], jac[2]))
                     Jtr += flat_weight * (Jt.T @ rt + jac[2] * rh)
-            lam = damping * (10.0 if (f == 0 and it < 10) else 1.0)
+            lam = damping * (10.0 if (cold and it < 10) else 1.0)
             dq[:] = -np.linalg.solve(JtJ + lam * np.eye(m.nv) + 1e-6 * np.diag(np.diag(JtJ)), Jtr)
             mujoco.mj_integratePos(m, q, dq, 1.0)
             q[hq] = np.clip(q[hq], lo, hi)
+
+    def site_errors(q: np.ndarray, f: int) -> np.ndarray:
+        """(persons,) worst weighted site error (m) of each person at ``q``."""
+        d.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        err = np.linalg.norm(d.site_xpos[scene.site_ids] - targets[f], axis=-1)
+        return np.where(weight[f] > 0, err, 0.0).max(axis=1)
+
+    for f in range(F):
+        iterate(q, f, iters_first if f == 0 else iters, cold=f == 0)
+        bad = [i for i, e in enumerate(site_errors(q, f)) if e > restart_tol_m]
+        if bad and f > 0:
+            # A warm start can keep a limb in the wrong valley (an elbow bent the wrong
+            # way through a fast punch) for many frames: retry those persons from their
+            # rest joint angles and keep whichever fits better.
+            q2 = q.copy()
+            for i in bad:
+                hp = lay.persons[i].hinge_qpos
+                q2[hp] = m.qpos0[hp]
+            iterate(q2, f, iters_first, cold=True)
+            e1, e2 = site_errors(q, f), site_errors(q2, f)
+            for i in bad:
+                if e2[i] < e1[i]:
+                    p = lay.persons[i]
+                    q[p.qpos_adr : p.qpos_adr + p.nq] = q2[p.qpos_adr : p.qpos_adr + p.nq]
         out[f] = q
     return out
 

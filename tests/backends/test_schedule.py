@@ -208,3 +208,35 @@ def test_reference_carries_its_schedule() -> None:
     np.testing.assert_allclose(ref.ctrl, ref.schedule.ctrl[:, 0])
     held, _, _ = build_reference(scene, kp, [0], substeps=0)
     assert held.schedule is None
+
+
+def test_inverse_kinematics_restarts_a_person_left_far_from_its_targets() -> None:
+    """A frame whose warm-started iterations leave a site more than ``restart_tol_m``
+    off (here: no warm iterations at all, so the previous frame's pose is kept while
+    the arms are thrown up) is solved again from the rest angles; without the restart
+    the arms stay off by decimetres."""
+    scene = _one_person_scene()
+    m = scene.model
+    d = mujoco.MjData(m)
+    q = np.tile(m.qpos0, (4, 1))
+    q[:, 2] += 0.95
+    for a in _swinging_joints(m):
+        j = int(np.flatnonzero(m.jnt_qposadr == a)[0])
+        q[2:, a] = m.jnt_range[j, 0] + 0.8 * (m.jnt_range[j, 1] - m.jnt_range[j, 0])
+    targets = np.zeros((4, 1, len(scene.site_names), 3))
+    for f in range(4):
+        d.qpos[:] = q[f]
+        mujoco.mj_kinematics(m, d)
+        targets[f, 0] = d.site_xpos[scene.site_ids[0]]
+    weight = np.ones(targets.shape[:3])
+
+    def worst_error_m(qs: np.ndarray, f: int) -> float:
+        d.qpos[:] = qs[f]
+        mujoco.mj_kinematics(m, d)
+        return float(np.linalg.norm(d.site_xpos[scene.site_ids[0]] - targets[f, 0], axis=-1).max())
+
+    stuck = inverse_kinematics(scene, targets, weight, iters=0, restart_tol_m=1e9)
+    fixed = inverse_kinematics(scene, targets, weight, iters=0, restart_tol_m=0.05)
+    assert worst_error_m(stuck, 2) > 0.05
+    assert worst_error_m(fixed, 2) < 0.01
+    assert worst_error_m(fixed, 3) < 0.01
