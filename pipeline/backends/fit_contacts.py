@@ -12,33 +12,20 @@ from __future__ import annotations
 
 import torch
 
-from pipeline.evaluate.physics_metrics import CapsuleProxy, point_weights
+from pipeline.evaluate.physics_metrics import CapsuleProxy, point_weights, segment_closest_params
 from pipeline.schema.joints import COCO17_FEET
 
 
 def _segment_distance(p0: torch.Tensor, p1: torch.Tensor, q0: torch.Tensor, q1: torch.Tensor) -> torch.Tensor:
     """Closest distance between segments [p0, p1] and [q0, q1] (broadcast over leading
-    dims; Ericson, Real-Time Collision Detection 5.1.9, as
-    ``physics_metrics.segment_closest_params``)."""
-    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
-    a = (d1 * d1).sum(-1)
-    e = (d2 * d2).sum(-1)
-    f = (d2 * r).sum(-1)
-    c = (d1 * r).sum(-1)
-    b = (d1 * d2).sum(-1)
-    eps = 1e-12
-    a_s, e_s = a.clamp(min=eps), e.clamp(min=eps)
-    denom = a * e - b * b
-    s = torch.where(denom > eps * (a * e).clamp(min=eps), ((b * f - c * e) / denom.clamp(min=eps)).clamp(0.0, 1.0), 0.0 * a)
-    s = torch.where(e <= eps, (-c / a_s).clamp(0.0, 1.0), s)
-    t = torch.where(e > eps, (b * s + f) / e_s, 0.0 * e)
-    s = torch.where(t < 0.0, (-c / a_s).clamp(0.0, 1.0), s)
-    s = torch.where(t > 1.0, ((b - c) / a_s).clamp(0.0, 1.0), s)
-    t = t.clamp(0.0, 1.0)
-    s = torch.where(a <= eps, 0.0 * a, s)
-    t = torch.where(a <= eps, torch.where(e > eps, (f / e_s).clamp(0.0, 1.0), 0.0 * e), t)
-    cp = p0 + d1 * s[..., None]
-    cq = q0 + d2 * t[..., None]
+    dims). The closest points' parameters come from the metric's own
+    ``physics_metrics.segment_closest_params`` on detached values: the distance is a
+    minimum over them, so its gradient is the one at fixed parameters."""
+    s_np, t_np = segment_closest_params(*(x.detach().cpu().numpy() for x in (p0, p1, q0, q1)))
+    s = torch.as_tensor(s_np, dtype=p0.dtype, device=p0.device)
+    t = torch.as_tensor(t_np, dtype=p0.dtype, device=p0.device)
+    cp = p0 + (p1 - p0) * s[..., None]
+    cq = q0 + (q1 - q0) * t[..., None]
     return (cp - cq).square().sum(-1).clamp(min=1e-18).sqrt()
 
 
