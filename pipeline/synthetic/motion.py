@@ -246,8 +246,11 @@ def boxer_arms(
                 reach = float(np.clip(dist - 0.12, 0.3 * body.arm_m, 0.9 * body.arm_m))
                 strike = shoulder[fp] + aim / dist * reach
                 target = target + prof * (strike - target)
-        # Entering/leaving the grip the hand goes around the opponent, not through him.
-        detour = 4.0 * w * (1 - w) * apply(me.R_guard, np.array([0.0, 0.3 * out, 0.05]) * s)
+        # Entering/leaving the grip the hand goes around the opponent, not through him: the
+        # lead hand over his shoulder and the rear hand under his arm, so the arms pass
+        # each other on the sides they grip from (``separate_persons`` keeps a limb on the
+        # side of another limb it first meets).
+        detour = 4.0 * w * (1 - w) * apply(me.R_guard, np.array([0.0, 0.3 * out, 0.15 * out]) * s)
         target = (1 - w) * target + w * grips[side] + detour
         pole = (1 - w) * pole + w * apply(me.R_guard, np.array([0.0, out, -0.3]))
         place_arm(joints, body, side, target, pole)

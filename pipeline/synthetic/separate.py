@@ -19,16 +19,18 @@ is scored against. ``separate_persons`` removes the overlap with position-based 
 - the correction field is smoothed over time between rounds (which aim ``smooth_margin_m``
   further out) so that the motion stays smooth, and a final round without smoothing
   leaves no overlap;
-- in the smoothed rounds a capsule pair keeps its side of the other from frame to frame
-  (``_consistent_normals``): where the choreography passes one arm through the other,
-  the arm is held over (or under) it instead of being pushed each frame to whichever side
-  is nearer, which zig-zagged elbows by up to 20 cm in a frame (accelerations of up to
-  200 mm/frame² that no physics could follow).
+- in the smoothed rounds a pair of limb capsules (arms, gloves, legs) keeps its side of
+  the other from frame to frame (``_consistent_normals``): where the choreography passes
+  one arm through the other, the arm is held over (or under) it instead of being pushed
+  each frame to whichever side is nearer, which zig-zagged elbows by up to 20 cm in a frame
+  (accelerations of up to 200 mm/frame² that no physics could follow). Limbs still get
+  past trunks and heads (the clinch grip takes a hand behind the opponent's back).
 
-The ground truth's mean acceleration grows from 5.26 to 5.31 mm/frame² on the default
-bout (seed 0; 5.89 with per-frame sides); 150-frame bouts 0-3: 5.27-6.94 -> 5.54-7.09,
-and joint accelerations that separation raises by more than 40 mm/frame² went from
-38-46 per bout to 0-10.
+The ground truth's mean acceleration grows from 5.29 to 5.39 mm/frame² on the default bout
+(seed 0; it grew from 5.26 to 5.89 with per-frame sides, before the clinch grip's detour
+passed the arms on their own sides), and separation raises 5 joint accelerations by more
+than 40 mm/frame² (at most 100). 150-frame bouts 0-3: 5.43-7.20 mm/frame² (5.36-7.02
+before separation), 1-10 such joint accelerations per bout (38-46 with per-frame sides).
 
 Pure numpy; ``make_bout`` applies it to the two boxers after their arms are placed.
 """
@@ -99,6 +101,8 @@ def _contact_round(
     segs = [(_end_joints(a, names), _end_joints(b, names), r) for a, b, r in proxy.segments]
     S = len(segs)
     radii = np.array([r for _, _, r in segs])
+    limb = np.array([any(j in a + b for j in _LIMB_JOINTS) for a, b, _ in proxy.segments])
+    limb_pair = limb[:, None] & limb[None, :]
     # (S, J) share of a capsule end's displacement that joint j takes: the minimum-norm
     # joint displacements that move the end point (sum_j w_j x_j) by a given vector, w_j /
     # sum(w^2) each (a midpoint end moves both its joints by the full vector).
@@ -126,7 +130,7 @@ def _contact_round(
                 n = np.where((dist > 1e-9)[..., None], diff, fallback)
                 n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-9)
                 # A pair held on its side must travel its distance back plus the overlap.
-                pen = np.where(_consistent_normals(n, dist, reach), reach + dist, pen)
+                pen = np.where(_consistent_normals(n, dist, reach, limb_pair), reach + dist, pen)
             hit = pen > 0
             if not hit.any():
                 continue
@@ -156,7 +160,11 @@ SIDE_HOLD_M = 0.15
 """How far (beyond touching) a pair is held on its side after the input crossed over."""
 
 
-def _consistent_normals(n: np.ndarray, dist: np.ndarray, reach: np.ndarray) -> np.ndarray:
+_LIMB_JOINTS: tuple[str, ...] = ("elbow", "wrist", "knee", "ankle")
+"""A capsule with an end at one of these joints is a limb (arms, gloves, legs)."""
+
+
+def _consistent_normals(n: np.ndarray, dist: np.ndarray, reach: np.ndarray, limb_pair: np.ndarray) -> np.ndarray:
     """Keep each capsule pair's push direction (F, S, S, 3) on one side from frame to
     frame, in place. Where a pair was near (within ``SIDE_BAND_M`` of touching, on its
     side) in the frame before and its closest-point direction reversed (two crossing
@@ -164,13 +172,15 @@ def _consistent_normals(n: np.ndarray, dist: np.ndarray, reach: np.ndarray) -> n
     keeps the previous frame's side, up to ``SIDE_HOLD_M`` beyond touching. Pushing each
     frame towards its own nearer side sends a limb over the other arm in one frame and
     under it in the next: a zig-zag of up to 8 cm per frame that no body can follow.
-    ``dist`` (F, S, S) are the pairs' distances, ``reach`` (S, S) their radii sums (plus
-    clearance). Returns the (F, S, S) mask of reversed directions."""
+    Only pairs of two limbs (``limb_pair`` (S, S)) keep their side: a hand that the
+    choreography takes around the other boxer's back (the clinch grip) must get past his
+    trunk. ``dist`` (F, S, S) are the pairs' distances, ``reach`` (S, S) their radii sums
+    (plus clearance). Returns the (F, S, S) mask of reversed directions."""
     flipped = np.zeros(dist.shape, dtype=bool)
     side_dist = dist[0].copy()  # signed: negative on the far side of the other segment
     for f in range(1, n.shape[0]):
         was_near = side_dist < reach + SIDE_BAND_M
-        flipped[f] = was_near & (np.sum(n[f] * n[f - 1], axis=-1) < 0.0) & (dist[f] < reach + SIDE_HOLD_M)
+        flipped[f] = limb_pair & was_near & (np.sum(n[f] * n[f - 1], axis=-1) < 0.0) & (dist[f] < reach + SIDE_HOLD_M)
         n[f][flipped[f]] *= -1.0
         side_dist = np.where(flipped[f], -dist[f], dist[f])
     return flipped
