@@ -80,6 +80,12 @@ class PhysicsConfig:
     floor contact settles: 1 mm inside ``floor_margin_m``). From the keypoints alone a
     planted foot is tilted by ~5° (up to 10°) and hovers ~7 mm up; the simulated foot,
     flat on the floor, then rocks on its sole and slides."""
+    calibrate_foot_sites: bool = True
+    """With ``flat_feet``: move each foot's keypoint sites (ankle, heel, toes) by the median
+    of how far they miss the planted keypoints when the sole stands flat
+    (``mujoco_foot_sites``): the body model's landmark convention for the feet is not the
+    keypoints' (anny's toe sites sit ~15 mm lower than its heel's on a level sole; the
+    observed planted heel and toes are level). The collision geometry is unchanged."""
     max_frames: int = 0
     """Process only the first N frames (0 = all)."""
     window: int = 24
@@ -441,6 +447,16 @@ def run(
     pids = [int(kp.person_ids[r]) for r in rows]
     skels, skeleton_kind = build_skeletons(kp, rows, inputs.bodyfit, cfg)
     hcfg = humanoid_config(cfg)
+    sole_lift = max(cfg.floor_margin_m - 0.001, 0.0)
+    foot_offsets_mm = 0.0
+    if cfg.flat_feet and cfg.calibrate_foot_sites:
+        from pipeline.backends.mujoco_foot_sites import move_sites, planted_site_offsets
+
+        offs = planted_site_offsets(mp.build_scene(skels, pids, kp.fps, kp.joint_names, hcfg), kp, rows, sole_lift_m=sole_lift)
+        skels = [move_sites(sk, o) for sk, o in zip(skels, offs, strict=True)]
+        moved = [float(np.linalg.norm(v)) for o in offs for v in o.values()]
+        foot_offsets_mm = 1000.0 * float(np.mean(moved)) if moved else 0.0
+        log.info("physics: foot sites moved onto the planted keypoints by %.1f mm on average (%d sites)", foot_offsets_mm, len(moved))
     scfg = mp.SolverConfig(
         window=cfg.window,
         commit=cfg.commit,
@@ -474,7 +490,7 @@ def run(
         sub = scene if len(g) == len(rows) else mp.build_scene([skels[i] for i in g], [pids[i] for i in g], kp.fps, kp.joint_names, hcfg)
         ref, targets, weight = mp.build_reference(
             sub, kp, [rows[i] for i in g], separate=cfg.separate_reference, substeps=cfg.substeps if cfg.schedule else 0,
-            flat_feet=cfg.flat_feet, sole_lift_m=max(cfg.floor_margin_m - 0.001, 0.0), ff_friction=cfg.feedforward_friction,
+            flat_feet=cfg.flat_feet, sole_lift_m=sole_lift, ff_friction=cfg.feedforward_friction,
             ff_smooth_frames=cfg.feedforward_smooth_frames, separation_clearance_m=cfg.separation_clearance_m,
         )
 
@@ -539,6 +555,7 @@ def run(
         "nv": int(scene.model.nv),
         "nu": int(scene.model.nu),
         "mass_kg": [round(p.mass_kg, 2) for p in lay.persons],
+        "foot_site_offset_mm_mean": round(foot_offsets_mm, 2),
         "windows": int(agg["windows"]),
         "windows_with_residual": int(agg["windows_with_residual"]),
         "iterations": int(agg["iterations"]),
