@@ -125,20 +125,15 @@ def _contact_round(
             dist = np.linalg.norm(diff, axis=-1)
             reach = radii[:, None] + radii[None, :] + clearance_m
             pen = reach - dist
-            if consistent and (pen > 0).any():
-                fallback = (a0[:, 0] - b0[:, 0])[:, None, None, :]
-                n = np.where((dist > 1e-9)[..., None], diff, fallback)
-                n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-9)
-                # A pair held on its side must travel its distance back plus the overlap.
+            if not (pen > 0).any():
+                continue
+            fallback = (a0[:, 0] - b0[:, 0])[:, None, None, :]
+            n = np.where((dist > 1e-9)[..., None], diff, fallback)
+            n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-9)
+            if consistent:  # a pair held on its side travels its distance back plus the overlap
                 pen = np.where(_consistent_normals(n, dist, reach, limb_pair), reach + dist, pen)
             hit = pen > 0
-            if not hit.any():
-                continue
             deepest = max(deepest, float(pen[hit].max()))
-            if not consistent:
-                fallback = (a0[:, 0] - b0[:, 0])[:, None, None, :]
-                n = np.where((dist > 1e-9)[..., None], diff, fallback)
-                n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-9)
             push = np.where(hit[..., None], 0.5 * pen[..., None] * n, 0.0)  # (F, S, S, 3) for p; -push for q
             for who, delta, par, axis in ((p, push, s, 2), (q, -push, t, 1)):
                 w0, w1 = 1.0 - par, par
@@ -171,7 +166,7 @@ def _consistent_normals(n: np.ndarray, dist: np.ndarray, reach: np.ndarray, limb
     segments: the line between their closest points flips as one passes the other), it
     keeps the previous frame's side, up to ``SIDE_HOLD_M`` beyond touching. Pushing each
     frame towards its own nearer side sends a limb over the other arm in one frame and
-    under it in the next: a zig-zag of up to 8 cm per frame that no body can follow.
+    under it in the next: a zig-zag of up to 20 cm per frame that no body can follow.
     Only pairs of two limbs (``limb_pair`` (S, S)) keep their side: a hand that the
     choreography takes around the other boxer's back (the clinch grip) must get past his
     trunk. ``dist`` (F, S, S) are the pairs' distances, ``reach`` (S, S) their radii sums
