@@ -22,7 +22,7 @@ import dataclasses
 import mujoco
 import numpy as np
 
-from pipeline.backends.humanoid_skeleton import Skeleton, sole_height_m
+from pipeline.backends.humanoid_skeleton import Skeleton
 from pipeline.backends.mujoco_scene import Scene
 from pipeline.schema.keypoints3d import Keypoints3D
 
@@ -44,12 +44,10 @@ def planted_site_offsets(
     Feet planted for fewer than ``min_frames`` frames get no offset; offsets are clipped to
     ``max_offset_m`` in length (a larger miss is a bad solve, not a landmark convention).
     """
-    from pipeline.backends.mujoco_reference import inverse_kinematics, plant_feet, site_targets
+    from pipeline.backends.mujoco_reference import inverse_kinematics, planted_site_targets
 
     m = scene.model
-    targets, weight = site_targets(scene, kp, person_rows)
-    sole = np.array([sole_height_m(kp, r) or 0.0 for r in person_rows])
-    targets, contact = plant_feet(targets, weight, scene.site_names, kp.fps, sole)
+    targets, weight, contact = planted_site_targets(scene, kp, person_rows)
     q = inverse_kinematics(scene, targets, weight, flat=contact, sole_lift_m=sole_lift_m)
     d = mujoco.MjData(m)
     F = q.shape[0]

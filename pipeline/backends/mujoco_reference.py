@@ -28,6 +28,7 @@ __all__ = [
     "inverse_kinematics",
     "lift_off_floor",
     "plant_feet",
+    "planted_site_targets",
     "reference_velocity",
     "separate_persons",
     "separate_reference",
@@ -217,6 +218,15 @@ def site_targets(scene: Scene, kp: Keypoints3D, person_rows: list[int]) -> tuple
     return targets, weight
 
 
+def planted_site_targets(scene: Scene, kp: Keypoints3D, person_rows: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``site_targets`` with planted feet held still at the sole height (``plant_feet``):
+    (targets, weight, foot contact (frames, persons, 2))."""
+    targets, weight = site_targets(scene, kp, person_rows)
+    sole = np.array([sole_height_m(kp, r) or 0.0 for r in person_rows])
+    targets, contact = plant_feet(targets, weight, scene.site_names, kp.fps, sole)
+    return targets, weight, contact
+
+
 def build_reference(
     scene: Scene,
     kp: Keypoints3D,
@@ -245,12 +255,11 @@ def build_reference(
     the optimiser then tracks a contact-free, reachable motion instead of fighting
     keypoints that pass through the other athlete (the synthetic clinches do)."""
     m, lay = scene.model, scene.layout
-    targets, weight = site_targets(scene, kp, person_rows)
+    contact: np.ndarray | None = None
     if plant:
-        sole = np.array([sole_height_m(kp, r) or 0.0 for r in person_rows])
-        targets, contact = plant_feet(targets, weight, scene.site_names, kp.fps, sole)
+        targets, weight, contact = planted_site_targets(scene, kp, person_rows)
     else:
-        contact = None
+        targets, weight = site_targets(scene, kp, person_rows)
     qref = inverse_kinematics(scene, targets, weight, flat=contact if flat_feet else None, sole_lift_m=sole_lift_m)
     F, P, S = weight.shape
     if separate and P > 1:
