@@ -169,11 +169,12 @@ def _fit(
     # Optimised variables are scaled so that the loss has similar curvature along each
     # (L-BFGS starts from a scalar Hessian): a rotation is scaled by the lever arm of the
     # keypoints it moves, the per-person constants by the number of frames they explain
-    # (times ``constants_step``).
+    # (the landmark offsets times ``landmark_step``).
     lever = lever_arms(body, rest_kp[0] + heads_np[0], heads_np)
     s_rot = torch.as_tensor(lever, dtype=dt)[None, :, None]
     s_root = float(np.sqrt(nj))
-    s_const = float(np.sqrt(nf)) * cfg.constants_step
+    s_const = float(np.sqrt(nf))
+    s_offsets = s_const * cfg.landmark_step
     delta_s = torch.zeros(n, 3, dtype=dt, requires_grad=True)
     pose_s = (pose0 * s_rot[:, 1:]).requires_grad_(True)
     root_s = (root0 * s_root).requires_grad_(True)
@@ -191,7 +192,7 @@ def _fit(
             delta_s / s_rot[:, 0],
             pose_s / s_rot[:, 1:],
             root_s / s_root,
-            offsets_s / s_const,
+            offsets_s / s_offsets,
             shape_s / (s_const * 0.3),
         )
 

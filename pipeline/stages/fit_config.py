@@ -100,17 +100,18 @@ class FitConfig:
     """Refine the shape jointly with the poses in the pose passes (after its bone-length
     initialisation): lengths from noisy 3D are biased, the 2D views correct them."""
 
-    constants_step: float = 0.1
-    """anny only: scale of the per-person constants (landmark offsets, shape refinement)
-    among the L-BFGS variables, relative to √frames (the number of frames they explain).
-    They are optimised as ``constants_step · √frames`` times their value; L-BFGS starts
-    from a scalar Hessian, so its steps along them grow as ``1 / constants_step²``: below 1
-    the constants follow the poses faster. ``cornerman bench fit`` (4 cameras, 300 frames),
-    MPJPE / acceleration error against 1 (the scaling before): seed 0 9.49 / 3.16 → 9.18 /
-    3.16 mm, mm/f²; seed 1 10.24 / 3.31 → 9.91 / 3.32; seed 2 10.63 / 3.53 → 10.41 / 3.53;
-    2 cameras (seed 0) 24.10 / 4.48 → 24.10 / 4.46. Seed 0 with 0.05 / 0.2 / 0.33 / 3:
-    9.42 / 9.31 / 9.36 / 11.12 mm. The fit is not converged at ``pose_iters``: 400
-    iterations reach 8.1 mm, at 2.7x the time."""
+    landmark_step: float = 0.1
+    """anny only: scale of the landmark offsets among the L-BFGS variables, relative to
+    √frames (the number of frames they explain). They are optimised as ``landmark_step ·
+    √frames`` times their value; L-BFGS starts from a scalar Hessian, so its steps along
+    them grow as ``1 / landmark_step²``: below 1 the offsets follow the poses faster.
+    ``cornerman bench fit`` (4 cameras, 300 frames), MPJPE against 1 (the scaling before):
+    seed 0 9.49 → 9.21 mm, seed 1 10.24 → 9.96 mm, acceleration error unchanged. Applied
+    to the shape refinement too, it moved the shapes (bodies bulkier around the same
+    keypoints: the ground truth's own body overlap in ``cornerman bench physics`` 39 → 62
+    mm) for 0.03 mm more; seed 0 with 0.05 / 0.2 / 0.33 / 3 (both): 9.42 / 9.31 / 9.36 /
+    11.12 mm. The fit is not converged at ``pose_iters``: 400 iterations reach 8.1 mm,
+    at 2.7x the time."""
 
     w_landmarks: float = 10.0
     """Squared norm of those landmark offsets (m^2)."""
@@ -231,7 +232,7 @@ class FitConfig:
         for name in ("accel_adapt_after", "accel_adapt_window"):
             if getattr(self, name) < 0:
                 raise ValueError(f"FitConfig.{name} must be >= 0, got {getattr(self, name)}")
-        for name in ("accel_adapt_scale_m", "accel_adapt_gain", "constants_step"):
+        for name in ("accel_adapt_scale_m", "accel_adapt_gain", "landmark_step"):
             if not getattr(self, name) > 0:  # also refuses NaN
                 raise ValueError(f"FitConfig.{name} must be positive, got {getattr(self, name)}")
         if self.gm_sigma_px <= 0:

@@ -168,8 +168,8 @@ def test_config_validation() -> None:
         FitConfig(accel_adapt_after=-1)
     with pytest.raises(ValueError, match="accel_adapt_scale_m"):
         FitConfig(accel_adapt_scale_m=0.0)
-    with pytest.raises(ValueError, match="constants_step must be positive, got nan"):
-        FitConfig(constants_step=float("nan"))
+    with pytest.raises(ValueError, match="landmark_step must be positive, got nan"):
+        FitConfig(landmark_step=float("nan"))
     with pytest.raises(ValueError, match=r"girth_prior must be \(muscle, weight\) in \[0, 1\]"):
         FitConfig(girth_prior=(0.5, 1.5))
     with pytest.raises(ValueError, match="girth_prior_weight must be >= 0, got nan"):
