@@ -107,9 +107,9 @@ class FitConfig:
     them grow as ``1 / landmark_step²``: below 1 the offsets follow the poses faster.
     ``cornerman bench fit`` (4 cameras, 300 frames), MPJPE against 1 (the scaling before):
     seed 0 9.49 → 9.21 mm, seed 1 10.24 → 9.96 mm, acceleration error unchanged. Applied
-    to the shape refinement too, it moved the shapes (bodies bulkier around the same
-    keypoints: the ground truth's own body overlap in ``cornerman bench physics`` 39 → 62
-    mm) for 0.03 mm more; seed 0 with 0.05 / 0.2 / 0.33 / 3 (both): 9.42 / 9.31 / 9.36 /
+    to the shape refinement too, it moved the shapes (seed 0: anny's gender 0.63 → 0.54,
+    age 0.88 → 0.75) for 0.03 mm more and worse physics (``cornerman bench physics``,
+    bout 3: skating 0.90 → 1.38 mm/frame); seed 0 with 0.05 / 0.2 / 0.33 / 3 (both): 9.42 / 9.31 / 9.36 /
     11.12 mm. The fit is not converged at ``pose_iters``: 400 iterations reach 8.1 mm,
     at 2.7x the time."""
 
