@@ -100,18 +100,19 @@ class FitConfig:
     """Refine the shape jointly with the poses in the pose passes (after its bone-length
     initialisation): lengths from noisy 3D are biased, the 2D views correct them."""
 
-    landmark_step: float = 0.1
+    landmark_step: float = 1.0
     """anny only: scale of the landmark offsets among the L-BFGS variables, relative to
     √frames (the number of frames they explain). They are optimised as ``landmark_step ·
     √frames`` times their value; L-BFGS starts from a scalar Hessian, so its steps along
     them grow as ``1 / landmark_step²``: below 1 the offsets follow the poses faster.
-    ``cornerman bench fit`` (4 cameras, 300 frames), MPJPE against 1 (the scaling before):
-    seed 0 9.49 → 9.21 mm, seed 1 10.24 → 9.96 mm, acceleration error unchanged. Applied
-    to the shape refinement too, it moved the shapes (seed 0: anny's gender 0.63 → 0.54,
-    age 0.88 → 0.75) for 0.03 mm more and worse physics (``cornerman bench physics``,
-    bout 3: skating 0.90 → 1.38 mm/frame); seed 0 with 0.05 / 0.2 / 0.33 / 3 (both): 9.42 / 9.31 / 9.36 /
-    11.12 mm. The fit is not converged at ``pose_iters``: 400 iterations reach 8.1 mm,
-    at 2.7x the time."""
+    ``cornerman bench fit`` (4 cameras, 300 frames), 0.1 against 1: MPJPE seed 0 9.49 →
+    9.21 mm, seed 1 10.24 → 9.96 mm, 2 cameras 24.1 → 23.6 mm, acceleration error
+    unchanged. Not the default: the physics stage did worse on that fit (``cornerman bench
+    physics``, bouts 0-3, multi-person: skating 0.80 → 0.87 mm/frame, MPJPE 14.0 → 14.2 mm;
+    the demo bout's physics MPJPE 14.6 → 17.1 mm). Applied to the shape refinement too it
+    moved the shapes (seed 0: anny's gender 0.63 → 0.54, age 0.88 → 0.75) for 0.03 mm more
+    and bout 3's physics skating 0.90 → 1.38 mm/frame. Seed 0 with 0.05 / 0.2 / 0.33 / 3
+    (both): 9.42 / 9.31 / 9.36 / 11.12 mm."""
 
     w_landmarks: float = 10.0
     """Squared norm of those landmark offsets (m^2)."""
