@@ -24,9 +24,10 @@ import numpy as np
 
 from pipeline.backends.humanoid_skeleton import Skeleton
 from pipeline.backends.mujoco_scene import Scene
+from pipeline.backends.mujoco_tracking import FOOT_SITES
 from pipeline.schema.keypoints3d import Keypoints3D
 
-FOOT_POINTS: tuple[str, ...] = ("ankle", "heel", "big_toe", "small_toe")
+FOOT_POINTS: tuple[str, ...] = ("ankle", *FOOT_SITES)
 """Keypoints of a foot whose sites are calibrated (per side: ``left_ankle``, ...)."""
 
 
@@ -52,6 +53,13 @@ def planted_site_offsets(
     d = mujoco.MjData(m)
     F = q.shape[0]
     out: list[dict[str, np.ndarray]] = [{} for _ in person_rows]
+    # (side k, site index s) of every calibrated foot point the scene has
+    feet = [
+        (k, scene.site_names.index(f"{side}_{n}"))
+        for k, side in enumerate(("left", "right"))
+        for n in FOOT_POINTS
+        if f"{side}_{n}" in scene.site_names
+    ]
     misses: dict[tuple[int, int], list[np.ndarray]] = {}
     for f in range(F):
         if not contact[f].any():
@@ -59,19 +67,12 @@ def planted_site_offsets(
         d.qpos[:] = q[f]
         mujoco.mj_kinematics(m, d)
         for i in range(len(person_rows)):
-            for k, side in enumerate(("left", "right")):
-                if not contact[f, i, k]:
+            for k, s in feet:
+                if not contact[f, i, k] or weight[f, i, s] <= 0:
                     continue
-                for n in FOOT_POINTS:
-                    name = f"{side}_{n}"
-                    if name not in scene.site_names:
-                        continue
-                    s = scene.site_names.index(name)
-                    if weight[f, i, s] <= 0:
-                        continue
-                    sid = int(scene.site_ids[i, s])
-                    R = d.xmat[m.site_bodyid[sid]].reshape(3, 3)
-                    misses.setdefault((i, s), []).append(R.T @ (targets[f, i, s] - d.site_xpos[sid]))
+                sid = int(scene.site_ids[i, s])
+                R = d.xmat[m.site_bodyid[sid]].reshape(3, 3)
+                misses.setdefault((i, s), []).append(R.T @ (targets[f, i, s] - d.site_xpos[sid]))
     for (i, s), v in misses.items():
         if len(v) < min_frames:
             continue
