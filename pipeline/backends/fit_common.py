@@ -234,6 +234,23 @@ def accel_term(
     return a2.sum()
 
 
+def jerk_term(kp: torch.Tensor, accel_weights: torch.Tensor) -> torch.Tensor:
+    """Sum of squared third differences of keypoints ``kp`` (persons, frames, joints, 3)
+    along frames (m² per frame⁶), each weighted by the smaller of the two re-weighted
+    acceleration weights (``adaptive_accel_weights``, (persons, frames - 2, joints)) it
+    spans: strong where a keypoint is at rest, weak in a punch or a step.
+
+    Against the acceleration penalty alone, a smoother of higher order passes the slow
+    motion and stops the frame-to-frame noise more sharply."""
+    if accel_weights.shape != (kp.shape[0], kp.shape[1] - 2, kp.shape[2]):
+        raise ValueError(
+            f"jerk_term: weights of shape {tuple(accel_weights.shape)} for keypoints of shape {tuple(kp.shape)}"
+        )
+    j = kp[:, 3:] - 3 * kp[:, 2:-1] + 3 * kp[:, 1:-2] - kp[:, :-3]
+    w = torch.minimum(accel_weights[:, 1:], accel_weights[:, :-1]).to(j.dtype)
+    return (j.square().sum(-1) * w).sum()
+
+
 def adaptive_accel_weights(kp: torch.Tensor, scale_m: float, window: int, gain: float) -> torch.Tensor:
     """Per keypoint and frame weights of the acceleration penalty, from a motion fitted so
     far: ``kp`` (persons, frames, joints, 3) → (persons, frames - 2, joints).
@@ -272,14 +289,15 @@ def sequence_terms(
     accel_weights: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
     """The weighted loss terms both body models share, in this order: ``3d``, ``2d``
-    (when ``use_2d``), ``reg``, ``smooth``, ``accel``.
+    (when ``use_2d``), ``reg``, ``smooth``, ``accel``, ``jerk`` (with ``accel_weights``).
 
     Rows are person-major (``npers * nf``): kp, kp3d (rows, joints, 3); w3d (rows, joints);
     pose (rows, bones - 1, 3) local rotation vectors; G_root (rows, 3, 3); G (rows, bones,
     3, 3) and x (rows, bones, 3) world bone frames, ``rest_heads`` (rows, bones, 3) their
     rest positions. ``mesh_velocity`` maps the frame-to-frame change of the bones' affine
     transforms (persons, frames - 1, bones, 3, 4) to the summed squared mesh-vertex velocity;
-    None leaves out ``smooth``. ``accel_weights``: see ``accel_term``.
+    None leaves out ``smooth``. ``accel_weights``: see ``accel_term``; the ``jerk`` term
+    (``jerk_term``) needs them, so it acts only in the re-weighted iterations.
     """
     out: dict[str, torch.Tensor] = {}
     out["3d"] = cfg.w_3d * (w3d * (kp - kp3d).square().sum(-1)).sum()
@@ -298,6 +316,8 @@ def sequence_terms(
         out["accel"] = cfg.w_accel * accel_term(
             kp.reshape(npers, nf, kp.shape[-2], 3), cfg.accel_scale_m, cfg.accel_whole_body, accel_weights
         )
+    if cfg.w_jerk > 0 and accel_weights is not None and nf > 3:
+        out["jerk"] = cfg.w_jerk * jerk_term(kp.reshape(npers, nf, kp.shape[-2], 3), accel_weights)
     return out
 
 

@@ -44,9 +44,10 @@ class FitConfig:
     """w4: squared pose change plus squared whole-mesh vertex displacement between
     consecutive frames (rad^2 + m^2 summed over all vertices; exact, via folded moments)."""
 
-    w_accel: float = 500.0
+    w_accel: float = 300.0
     """Squared second difference of the fitted keypoints (m^2 per frame^2; ours, not in the
-    paper): damps frame-to-frame jitter without slowing the motion down like ``w_smooth``."""
+    paper): damps frame-to-frame jitter without slowing the motion down like ``w_smooth``.
+    Was 500 before ``w_jerk``; see there."""
 
     accel_scale_m: float = 0.005
     """Scale of a pseudo-Huber penalty on those second differences (m per frame^2): below it
@@ -65,7 +66,21 @@ class FitConfig:
     skating unchanged (150 frames, seeds 0-3: 1.64 → 1.63 mm/frame). 0.2 and 0.5 are within
     0.2 mm; splitting the feet too raised their skating by 20-40 %."""
 
-    accel_adapt_after: int = 100
+    w_jerk: float = 150.0
+    """Squared third difference of the fitted keypoints (m^2 per frame^6; ours), weighted per
+    keypoint and frame by the re-weighted acceleration weights (``fit_common.jerk_term``), so
+    it acts only in the iterations after ``accel_adapt_after``: a smoother of higher order
+    that stops frame-to-frame noise more sharply and passes the slow motion. With it, the
+    acceleration penalty went from ``w_accel`` 500, ``accel_adapt_gain`` 4, re-weighting after
+    100 iterations to 300, 6, 90 (less smoothing before the re-weighting, as much after).
+    ``cornerman bench fit``, 4 cameras, 300 frames, MPJPE / acceleration error (mm, mm/f²)
+    against the filtered triangulation's: seed 0 9.51 / 3.16 → 9.16 / 3.01 (−27 → −30 %),
+    seed 1 10.24 / 3.31 → 9.83 / 3.13 (−27 → −31 %), seed 2 10.61 / 3.52 → 10.35 / 3.35
+    (−26 → −29 %); 2 cameras (seed 0) 24.16 / 4.53 → 23.41 / 4.43. Same iterations, same
+    time. On seed 0, 100 alone (the rest as before): 9.68 / 3.07; applied in every
+    iteration, unweighted: 30 → 9.87 / 3.10, 300 → 12.00 / 3.46."""
+
+    accel_adapt_after: int = 90
     """Iterations of the full pass (``pose_iters``) after which the acceleration penalty is
     re-weighted per keypoint and frame from the motion fitted so far; the remaining
     iterations use those weights in place of the pseudo-Huber (``fit_common.
@@ -75,16 +90,18 @@ class FitConfig:
     MPJPE / acceleration error: seed 0 9.59 / 3.86 → 9.19 / 3.59 mm, mm/f²; seed 1
     10.18 / 3.80 → 9.67 / 3.51; seed 2 10.24 / 3.78 → 9.55 / 3.47; 2 cameras (seed 0)
     22.90 / 4.92 → 23.08 / 4.75. Same number of iterations, so the same time. Re-weighting
-    twice (after 70 and 110) was no better (9.70 / 3.65, seed 0)."""
+    twice (after 70 and 110) was no better (9.70 / 3.65, seed 0). 100 before ``w_jerk``."""
 
     accel_adapt_scale_m: float = 0.002
     """s of the re-weighting (m per frame²): the weight is ``accel_adapt_gain · s² / (s² +
     m²)``, m the keypoint's RMS acceleration over ``accel_adapt_window`` frames either side.
     Seed 0: 0.0015 → 3.79, 0.0025 → 3.57 mm/f²."""
 
-    accel_adapt_gain: float = 4.0
+    accel_adapt_gain: float = 6.0
     """Weight, relative to ``w_accel``, of the re-weighted penalty at rest (m = 0). Seed 0:
-    3 (re-weighting after 120) → 3.67, 6 with a pseudo-Huber kept → 3.77 mm/f²."""
+    3 (re-weighting after 120) → 3.67, 6 with a pseudo-Huber kept → 3.77 mm/f². 4 before
+    ``w_jerk`` (with ``w_accel`` 500: 2000 at rest, now 1800); with it (seeds 0 / 2, MPJPE /
+    accel): 5 → 9.07 / 3.02, 10.24 / 3.37; 6 → 9.16 / 3.01, 10.35 / 3.35."""
 
     accel_adapt_window: int = 2
     """Frames either side over which m is averaged (0: that frame's acceleration alone, which
@@ -219,6 +236,7 @@ class FitConfig:
             "w_reg",
             "w_smooth",
             "w_accel",
+            "w_jerk",
             "accel_whole_body",
             "w_landmarks",
             "w_prior",
@@ -226,7 +244,7 @@ class FitConfig:
             "w_ground",
             "w_overlap",
         ):
-            if getattr(self, name) < 0:
+            if not getattr(self, name) >= 0:  # also refuses NaN
                 raise ValueError(f"FitConfig.{name} must be >= 0, got {getattr(self, name)}")
         if self.accel_scale_m < 0:
             raise ValueError(f"FitConfig.accel_scale_m must be >= 0, got {self.accel_scale_m}")

@@ -174,6 +174,10 @@ def test_config_validation() -> None:
         FitConfig(girth_prior=(0.5, 1.5))
     with pytest.raises(ValueError, match="girth_prior_weight must be >= 0, got nan"):
         FitConfig(girth_prior_weight=float("nan"))
+    with pytest.raises(ValueError, match="w_jerk must be >= 0, got nan"):
+        FitConfig(w_jerk=float("nan"))
+    with pytest.raises(ValueError, match="w_jerk must be >= 0, got -1"):
+        FitConfig(w_jerk=-1.0)
     # session.json values arrive untyped: a wrong type is refused with the field named
     with pytest.raises(ValueError, match=r"accel_adapt_after must be int, got '100' \(str\)"):
         FitConfig(accel_adapt_after="100")  # type: ignore[arg-type]
@@ -361,3 +365,42 @@ def test_user_pose_prior_is_loaded_and_used(tmp_path: Path, motion: AnnyMotion) 
     assert "loss_prior" in res.metrics and np.isfinite(res.metrics["loss_prior"])
     with pytest.raises(ValueError, match="GMM"):
         run(kp3d, tracks, assoc, rig, FitConfig(pose_prior_path=str(tmp_path / "missing.npz")))
+
+
+def test_jerk_term_weights_third_differences_and_acts_only_when_reweighted() -> None:
+    """jerk_term: squared third differences, each weighted by the smaller of the two
+    acceleration weights it spans; zero for constant acceleration. sequence_terms adds it
+    only with re-weighted acceleration weights (after ``accel_adapt_after``)."""
+    import torch
+
+    from pipeline.backends.fit_common import jerk_term, sequence_terms
+
+    nj, nf = len(COCO17_FEET), 8
+    t = torch.arange(nf, dtype=torch.float64)
+    x = torch.zeros(2, nf, nj, 3, dtype=torch.float64)
+    x[0, :, :, 0] = 0.01 * t[:, None] ** 2  # constant acceleration: no jerk
+    wrist = COCO17_FEET.index("left_wrist")
+    x[1, :, wrist, 1] = 0.001 * t**3  # third difference 6 mm at every frame
+    ones = torch.ones(2, nf - 2, nj, dtype=torch.float64)
+    assert float(jerk_term(x[:1], ones[:1])) == pytest.approx(0.0, abs=1e-18)
+    assert float(jerk_term(x, ones)) == pytest.approx((nf - 3) * 0.006**2)
+    w = ones.clone()
+    w[1, 2, wrist] = 0.25  # rows 1-2 and 2-3 of the jerk take the smaller weight
+    w[1, 4, wrist] = 4.0  # a larger neighbour does not raise a term
+    expect = (nf - 3 - 2) * 0.006**2 + 2 * 0.25 * 0.006**2
+    assert float(jerk_term(x, w)) == pytest.approx(expect)
+    with pytest.raises(ValueError, match="jerk_term: weights of shape"):
+        jerk_term(x, ones[:, 1:])
+
+    cfg = FitConfig(w_jerk=10.0, w_accel=0.0, w_2d=0.0, w_smooth=0.0)
+    n = 2 * nf
+    kp = x.reshape(n, nj, 3)
+    pose = torch.zeros(n, 3, 3, dtype=torch.float64)
+    G = torch.eye(3, dtype=torch.float64).expand(n, 4, 3, 3)
+    args = (cfg, kp, kp, torch.ones(n, nj, dtype=torch.float64), torch.zeros(1, 3, 4), torch.zeros(1, n, nj, 2))
+    rest = (torch.zeros(1, n, nj), True, pose, G[:, 0], G, torch.zeros(n, 4, 3), torch.zeros(n, 4, 3), 2, nf, None)
+    assert "jerk" not in sequence_terms(*args, *rest)
+    with_w = sequence_terms(*args, *rest, accel_weights=w)
+    assert float(with_w["jerk"]) == pytest.approx(10.0 * expect)
+    off = (FitConfig(w_jerk=0.0, w_accel=0.0, w_2d=0.0, w_smooth=0.0), *args[1:])
+    assert "jerk" not in sequence_terms(*off, *rest, accel_weights=w)
