@@ -17,7 +17,8 @@ the optimiser moves the targets along the reference (``mujoco_schedule``).
 
 Contacts: every geom touches the floor and the other athletes' geoms, except, by
 default, arm against arm of two athletes (``inter_person_arm_contacts``; those overlaps
-are removed from the reference instead, see ``PhysicsConfig.arm_contacts``). Within a
+are removed from the reference instead, see ``PhysicsConfig.arm_contacts``), and foot
+against foot (``inter_person_foot_contacts``, ``PhysicsConfig.foot_contacts``). Within a
 person, parent/child, sibling and grandparent bodies do not collide.
 
 The root (``p{pid}_root_x/y/z`` slides + ``p{pid}_root`` ball) is kinematically a
@@ -102,6 +103,10 @@ class HumanoidConfig:
     """Whether the arms (upper arms, forearms, hands) of two different persons collide
     with each other (``PhysicsConfig.arm_contacts``). Their other contacts (arm-trunk,
     arm-head, trunk-trunk, legs, ...) are always simulated."""
+    inter_person_foot_contacts: bool = False
+    """Whether the feet of two different persons collide with each other
+    (``PhysicsConfig.foot_contacts``); foot against shin, thigh or any other part is
+    simulated either way."""
     solver_iterations: int = 20
     """Constraint solver iterations per step (Newton)."""
     person_spacing_m: float = 2.0
@@ -288,7 +293,9 @@ def build_scene_mjcf(
             excludes += [f'    <exclude body1="p{pid}_{a_}" body2="p{pid}_{b_}"/>' for a_, b_ in _excluded_pairs(skel)]
     fr = cfg.friction
     if not cfg.inter_person_arm_contacts:
-        excludes += _arm_arm_excludes(skeletons, person_ids)
+        excludes += _inter_person_excludes(skeletons, person_ids, ARM_BODIES)
+    if not cfg.inter_person_foot_contacts:
+        excludes += _inter_person_excludes(skeletons, person_ids, FOOT_BODIES)
     asset_xml = f"  <asset>\n{chr(10).join(assets)}\n  </asset>\n" if assets else ""
     return f"""<mujoco model="cornerman_scene">
   <compiler angle="radian" autolimits="true"/>
@@ -327,14 +334,18 @@ ARM_BODIES = tuple(f"{side}_{b}" for side in ("left", "right") for b in ("upper_
 """Bodies whose contacts with the other athlete's arms ``inter_person_arm_contacts`` drops."""
 
 
-def _arm_arm_excludes(skeletons: list[Skeleton], person_ids: list[int]) -> list[str]:
-    """``<exclude>`` lines for every pair of arm bodies of two different persons."""
+FOOT_BODIES = ("left_foot", "right_foot")
+"""Bodies whose contacts with the other athlete's feet ``inter_person_foot_contacts`` drops."""
+
+
+def _inter_person_excludes(skeletons: list[Skeleton], person_ids: list[int], names: tuple[str, ...]) -> list[str]:
+    """``<exclude>`` lines for every pair of ``names`` bodies of two different persons."""
     out = []
     for i, (pa, ska) in enumerate(zip(person_ids, skeletons, strict=True)):
-        arms_a = [b.name for b in ska.bodies if b.name in ARM_BODIES]
+        in_a = [b.name for b in ska.bodies if b.name in names]
         for pb, skb in zip(person_ids[i + 1 :], skeletons[i + 1 :], strict=True):
-            arms_b = [b.name for b in skb.bodies if b.name in ARM_BODIES]
-            out += [f'    <exclude body1="p{pa}_{a}" body2="p{pb}_{b}"/>' for a in arms_a for b in arms_b]
+            in_b = [b.name for b in skb.bodies if b.name in names]
+            out += [f'    <exclude body1="p{pa}_{a}" body2="p{pb}_{b}"/>' for a in in_a for b in in_b]
     return out
 
 

@@ -23,7 +23,7 @@ from pipeline.backends.mujoco_humanoid import (
 class Scene:
     """A compiled scene: ``mjcf`` (what is simulated), its model and index maps, and
     ``probe_mjcf``: the same scene with every contact between the athletes enabled
-    (``mjcf`` may leave arm-arm contacts out), for separating and scoring overlap."""
+    (``mjcf`` may leave arm-arm and foot-foot contacts out), for separating and scoring overlap."""
 
     mjcf: str
     model: mujoco.MjModel
@@ -41,8 +41,9 @@ class Scene:
 def build_scene(skeletons: list[Skeleton], person_ids: list[int], fps: float, joint_names: tuple[str, ...], cfg: HumanoidConfig) -> Scene:
     """Compile the scene and map ``joint_names`` to sites of every person."""
     mjcf = build_scene_mjcf(skeletons, person_ids, fps, cfg)
-    probe = mjcf if cfg.inter_person_arm_contacts else build_scene_mjcf(
-        skeletons, person_ids, fps, replace(cfg, inter_person_arm_contacts=True)
+    every = cfg.inter_person_arm_contacts and cfg.inter_person_foot_contacts
+    probe = mjcf if every else build_scene_mjcf(
+        skeletons, person_ids, fps, replace(cfg, inter_person_arm_contacts=True, inter_person_foot_contacts=True)
     )
     model = load_model(mjcf)
     layout = scene_layout(model, person_ids)

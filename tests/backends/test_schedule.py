@@ -191,7 +191,28 @@ def test_arm_contacts_between_athletes_are_left_out_of_the_simulation_only() -> 
     assert 'p0_left_forearm" body2="p1_' not in scene.probe_mjcf
     assert 'body1="p0_left_forearm" body2="p1_torso"' not in scene.mjcf
     on = build_scene([skel, skel], [0, 1], FPS, COCO17_FEET, HumanoidConfig(inter_person_arm_contacts=True))
-    assert on.probe_mjcf == on.mjcf and 'p0_left_forearm" body2="p1_' not in on.mjcf
+    assert 'p0_left_forearm" body2="p1_' not in on.mjcf
+
+
+def test_foot_contacts_between_athletes_are_left_out_of_the_simulation_only() -> None:
+    """With ``inter_person_foot_contacts`` off (the default) the simulated model excludes
+    the four foot-foot pairs of the two athletes and no other pair of a foot; the probe
+    model keeps them all."""
+    skel = build_skeleton(dict(_DEFAULT_LENGTHS))
+    scene = build_scene([skel, skel], [0, 1], FPS, COCO17_FEET, HumanoidConfig())
+    for a in ("left_foot", "right_foot"):
+        for b in ("left_foot", "right_foot"):
+            assert f'body1="p0_{a}" body2="p1_{b}"' in scene.mjcf
+            assert f'body1="p0_{a}" body2="p1_{b}"' not in scene.probe_mjcf
+    assert 'body1="p0_left_foot" body2="p1_left_shin"' not in scene.mjcf
+    feet = [line for line in scene.mjcf.splitlines() if "<exclude" in line and "_foot" in line and 'body1="p0_' in line and 'body2="p1_' in line]
+    assert len(feet) == 4
+    on = build_scene([skel, skel], [0, 1], FPS, COCO17_FEET, HumanoidConfig(inter_person_foot_contacts=True))
+    assert 'p0_left_foot" body2="p1_' not in on.mjcf
+    both = HumanoidConfig(inter_person_foot_contacts=True, inter_person_arm_contacts=True)
+    assert build_scene([skel, skel], [0, 1], FPS, COCO17_FEET, both).probe_mjcf == build_scene(
+        [skel, skel], [0, 1], FPS, COCO17_FEET, both
+    ).mjcf
 
 
 def test_humanoid_defaults_are_the_physics_stage_defaults() -> None:
