@@ -41,10 +41,8 @@ class Scene:
 def build_scene(skeletons: list[Skeleton], person_ids: list[int], fps: float, joint_names: tuple[str, ...], cfg: HumanoidConfig) -> Scene:
     """Compile the scene and map ``joint_names`` to sites of every person."""
     mjcf = build_scene_mjcf(skeletons, person_ids, fps, cfg)
-    every = cfg.inter_person_arm_contacts and cfg.inter_person_foot_contacts
-    probe = mjcf if every else build_scene_mjcf(
-        skeletons, person_ids, fps, replace(cfg, inter_person_arm_contacts=True, inter_person_foot_contacts=True)
-    )
+    every = replace(cfg, inter_person_arm_contacts=True, inter_person_foot_contacts=True)
+    probe = mjcf if every == cfg else build_scene_mjcf(skeletons, person_ids, fps, every)
     model = load_model(mjcf)
     layout = scene_layout(model, person_ids)
     names = tuple(n for n in joint_names if n in layout.persons[0].site_ids)
