@@ -194,6 +194,8 @@ COLUMNS: tuple[tuple[str, str], ...] = (
     ("body_pen_mean_mm", "body pen mean mm"),
     ("ground_penetration_max_mm", "ground max mm"),
     ("foot_skate_mm_per_frame", "skate mm/f"),
+    ("foot_skate_interior_mm_per_frame", "skate mid mm/f"),
+    ("foot_skate_edge_mm_per_frame", "skate edge mm/f"),
     ("foot_speed_contact_mm_s", "foot v mm/s"),
     ("foot_height_err_contact_mm", "foot z err mm"),
     ("mpjpe_mm", "MPJPE mm"),
@@ -228,7 +230,7 @@ def print_table(rows: list[dict]) -> None:
         cells = []
         for key, _ in COLUMNS:
             v = r.get(key, "")
-            fmt = "{:.2f}" if key.endswith("frac_bw") else "{:.1f}"
+            fmt = "{:.2f}" if key.endswith("frac_bw") or key.startswith("foot_skate") else "{:.1f}"
             cells.append(fmt.format(v) if isinstance(v, float) else str(v))
         table.add_row(*cells)
     # Wide enough for every column also when the output is a file or a pipe (80 columns).

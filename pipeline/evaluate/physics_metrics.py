@@ -7,7 +7,10 @@ every method), so it does not depend on the simulator's geometry.
 
 Units: mm, frames at the sequence's fps. Foot contact is a (frames, persons, 2)
 bool mask (left, right), e.g. the synthetic bout's ``foot_contact``; without it,
-a foot is in contact when its lowest point is below ``contact_height_m``.
+a foot is in contact when its lowest point is below ``contact_height_m``. Foot skating
+is also split into the first and last step of each stance (``foot_skate_edge_*``: a
+foot settling or rolling off, within a frame of the labelled touchdown) and the steps
+in between (``foot_skate_interior_*``: a planted foot sliding).
 """
 
 from __future__ import annotations
@@ -146,6 +149,23 @@ def foot_contact_from_height(kp: Keypoints3D, contact_height_m: float = 0.03) ->
     return out
 
 
+def stance_edge_steps(contact: np.ndarray) -> np.ndarray:
+    """(frames - 1, ...) True for the steps f -> f+1 that are the first or the last of a
+    stance: both frames in contact (``contact`` (frames, ...) bool) but f - 1 or f + 2
+    not. A stance running past either end of the clip continues there (no edge).
+
+    The skating of these steps (the foot settling as it lands, or starting to roll off)
+    is reported apart from the interior of the stance (``physics_metrics``): the ground
+    truth's contact labels put the touchdown at a frame that an estimate hits only to
+    within a frame."""
+    c = np.asarray(contact, dtype=bool)
+    if c.shape[0] < 2:
+        return np.zeros((0,) + c.shape[1:], dtype=bool)
+    padded = np.concatenate([c[:1], c, c[-1:]], axis=0)  # padded[f + 1] = c[f]
+    both = c[1:] & c[:-1]
+    return both & ~(padded[:-3] & padded[3:])
+
+
 def _smooth_diff(x: np.ndarray, order: int) -> np.ndarray:
     for _ in range(order):
         x = np.diff(x, axis=0)
@@ -171,12 +191,15 @@ def physics_metrics(
         raise ValueError(f"foot_contact shape {contact.shape} != {(kp.n_frames, kp.n_persons, 2)}")
     fp = _foot_points(kp)
     skate: list[np.ndarray] = []
+    edge: list[np.ndarray] = []
     for k, side in enumerate(("left", "right")):
         xy = kp.xyz_m[:, :, fp[side], :2].mean(axis=2)  # (F, P, 2)
         step = np.linalg.norm(np.diff(xy, axis=0), axis=-1)  # (F-1, P)
         both = contact[1:, :, k] & contact[:-1, :, k]
         skate.append(step[both])
+        edge.append(stance_edge_steps(contact[:, :, k])[both])
     skate_all = np.concatenate(skate) if skate else np.zeros(0)
+    is_edge = np.concatenate(edge) if edge else np.zeros(0, dtype=bool)
     speed = skate_all * kp.fps
     acc = np.linalg.norm(_smooth_diff(kp.xyz_m, 2), axis=-1)
     jerk = np.linalg.norm(_smooth_diff(kp.xyz_m, 3), axis=-1)
@@ -186,6 +209,8 @@ def physics_metrics(
         "ground_penetration_max_mm": float(ground.max(initial=0.0)),
         "ground_penetration_mean_mm": float(ground.mean()) if ground.size else 0.0,
         "foot_skate_mm_per_frame": float(1000.0 * skate_all.mean()) if skate_all.size else 0.0,
+        "foot_skate_edge_mm_per_frame": float(1000.0 * skate_all[is_edge].mean()) if is_edge.any() else 0.0,
+        "foot_skate_interior_mm_per_frame": float(1000.0 * skate_all[~is_edge].mean()) if (~is_edge).any() else 0.0,
         "foot_speed_contact_mm_s": float(1000.0 * speed.mean()) if speed.size else 0.0,
         "accel_mm_per_frame2": float(1000.0 * acc.mean()) if acc.size else 0.0,
         "jerk_mm_per_frame3": float(1000.0 * jerk.mean()) if jerk.size else 0.0,

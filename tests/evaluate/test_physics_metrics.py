@@ -12,6 +12,7 @@ from pipeline.evaluate.physics_metrics import (
     physics_metrics,
     point_weights,
     segment_distance,
+    stance_edge_steps,
 )
 from pipeline.schema.joints import COCO17_FEET
 from pipeline.schema.keypoints3d import Keypoints3D
@@ -92,6 +93,34 @@ def test_ground_penetration_skating_and_errors() -> None:
     assert m["foot_height_err_contact_mm"] == pytest.approx(1.5, abs=1e-9)
     same = physics_metrics(gt, gt, contact)
     assert same["mpjpe_mm"] == 0.0 and same["accel_err_mm_per_frame2"] == 0.0 and same["foot_skate_mm_per_frame"] == 0.0
+
+
+def test_skating_is_split_into_stance_edges_and_interior() -> None:
+    c = np.array([1, 1, 1, 0, 1, 1, 1, 0, 1, 1], dtype=bool)
+    # Steps in stance: 0-1 (interior: the stance runs on before the clip), 1-2 (last),
+    # 4-5 (first), 5-6 (last), 8-9 (first, of a stance that runs on after the clip).
+    assert stance_edge_steps(c).tolist() == [False, True, False, False, True, True, False, False, True]
+    # Per column; a stance of two frames is one step, both first and last; a foot planted
+    # throughout has no edges.
+    two = np.zeros(10, dtype=bool)
+    two[1:3] = True
+    cols = stance_edge_steps(np.stack([c, two, np.ones(10, dtype=bool)], axis=1))
+    assert cols[:, 1].tolist() == [False, True] + [False] * 7 and not cols[:, 2].any()
+    xyz = np.stack([_standing(0.0, 10), _standing(2.0, 10)], axis=1)
+    pred = xyz.copy()
+    left = [COCO17_FEET.index(n) for n in ("left_heel", "left_big_toe", "left_small_toe")]
+    contact = np.broadcast_to(c[:, None, None], (10, 2, 2)).copy()
+    pred[1:, 0, left, 0] += 0.003  # person 0's left foot creeps 3 mm in interior step 0-1
+    m = physics_metrics(_kp(pred), _kp(xyz), contact)
+    # 4 feet x 5 stance steps: 4 interior steps, 16 at a stance's edge.
+    assert m["foot_skate_interior_mm_per_frame"] == pytest.approx(3.0 / 4, abs=1e-9)
+    assert m["foot_skate_edge_mm_per_frame"] == 0.0
+    assert m["foot_skate_mm_per_frame"] == pytest.approx(3.0 / 20, abs=1e-9)
+    pred[5:, 0, left, 0] += 0.006  # and lands 6 mm off (first step 4-5 of the next stance)
+    m = physics_metrics(_kp(pred), _kp(xyz), contact)
+    assert m["foot_skate_edge_mm_per_frame"] == pytest.approx(6.0 / 16, abs=1e-9)
+    assert m["foot_skate_interior_mm_per_frame"] == pytest.approx(3.0 / 4, abs=1e-9)
+    assert m["foot_skate_mm_per_frame"] == pytest.approx(9.0 / 20, abs=1e-9)
 
 
 def test_foot_contact_from_height_and_shape_check() -> None:
