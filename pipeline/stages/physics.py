@@ -236,9 +236,9 @@ class PhysicsConfig:
     """w3 of eq. 5 (velocity tracking). Small: reference velocities of triangulated
     joints are noisy, and at the paper's 0.1 this term outweighs positions ~10×."""
     w_collision: float = 20.0
-    """w4 of eq. 5 (squared inter-person penetration depth). Bouts 0-3 (multi), capsule
-    penetration max / body overlap max mm, skating mm/frame, MPJPE mm: 20 -> 35.4 / 21.9,
-    0.79, 13.59; 200 -> 38.5 / 19.9, 0.78, 13.57; 1000 -> 40.1 / 20.0, 0.78, 13.59 (the
+    """w4 of eq. 5 (squared inter-person penetration depth). Bouts 0-3 (multi, one fixed
+    fit), capsule penetration max / body overlap max mm, skating mm/frame, MPJPE mm: 20 ->
+    35.4 / 21.9, 0.79, 13.59; 200 -> 38.5 / 19.9, 0.78, 13.57; 1000 -> 40.1 / 20.0, 0.78, 13.59 (the
     paper's 20 kept: the differences are within the run-to-run spread of single bouts)."""
     w_residual: float = 10.0
     """Squared change (m²) of the residual root servos' targets that the iLQR makes
