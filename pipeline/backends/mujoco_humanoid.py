@@ -84,7 +84,7 @@ class HumanoidConfig:
     floor_margin_m: float = 0.008
     """Floor contact margin: the soft contact settles ~2-3 mm into its margin, so
     soles rest on z ≈ 0 instead of sinking into the floor."""
-    floor_solref: tuple[float, float] = (0.01, 1.0)
+    floor_solref: tuple[float, float] = (0.005, 1.0)
     """MuJoCo ``solref`` of floor contacts: (time constant s, damping ratio), or
     (−stiffness, −damping) when negative (see MuJoCo's solver parameters)."""
     floor_solimp: tuple[float, float, float] = (0.9, 0.95, 0.001)
@@ -93,12 +93,14 @@ class HumanoidConfig:
     body_solref_timeconst_s: float = 0.02
     """Contact time constant of body geoms (inter-person contacts); softer than the
     soles' (0.02 s) so that overlapping athletes are pushed apart gently."""
-    substeps: int = 4
+    substeps: int = 8
     """MuJoCo steps per video frame: timestep = 1 / (fps · substeps). At 50 fps, one
     step (20 ms) is only stable with torque limits ≤ ~3 N·m/kg, too weak to track
-    boxing footwork; two steps (10 ms) are stable at 6 N·m/kg. Four (the stage's) allow a
-    floor twice as stiff, and keep two gloved humanoids started inside each other stable
-    under random targets, which two did not (``tests/backends/test_anny_humanoid.py``)."""
+    boxing footwork; two steps (10 ms) are stable at 6 N·m/kg. Four allow a floor twice
+    as stiff, and keep two gloved humanoids started inside each other stable under random
+    targets, which two did not (``tests/backends/test_anny_humanoid.py``); eight (the
+    stage's) allow the floor of ``floor_solref`` and let planted feet roll less
+    (``PhysicsConfig.substeps``)."""
     inter_person_arm_contacts: bool = False
     """Whether the arms (upper arms, forearms, hands) of two different persons collide
     with each other (``PhysicsConfig.arm_contacts``). Their other contacts (arm-trunk,

@@ -65,11 +65,16 @@ class PhysicsConfig:
     """Boxing gloves on the ``bodyfit`` humanoids: each hand is a ball of this radius
     around the fist (centre one radius past the wrist), not anny's open, flat hand that
     reaches 12-20 cm past the wrist. 0: anny's hand mesh."""
-    substeps: int = 4
+    substeps: int = 8
     """MuJoCo steps per video frame (stability of strong servos; see ``HumanoidConfig``).
-    Four steps allow a floor contact twice as stiff as two (``floor_solref``; MuJoCo's time
-    constant must be ≥ 2 steps). With ``deriv_every = 4`` the cost stays near that of two
-    substeps: see ``floor_solref``."""
+    More steps allow a stiffer floor contact (``floor_solref``; MuJoCo's time constant must
+    be ≥ 2 steps) and let a planted foot roll less on its sole. With ``deriv_every`` equal
+    to ``substeps`` the finite-difference cost per second of motion stays that of 4 and 4.
+    ``cornerman bench physics`` bouts 0-3 (multi, one fixed fit), skating mm/frame / MPJPE
+    mm, against 4 substeps (floor (0.01, 1), ``deriv_every`` 4): 0.79 / 13.59; 6 (6): 0.67
+    / 13.44; 8 (8): 0.67 / 13.51; 8 (8) with the floor at (0.005, 1): 0.61 / 13.64 (the
+    default); 8 (4): 0.64 / 13.55 at twice the finite differences; 16 (16): 0.64 / 13.79
+    with deeper capsule overlap (49 against 35-39 mm)."""
     schedule: bool = True
     """Move the servo targets and the residual root wrench along the reference between
     video frames, at every substep, with inverse-dynamics feed-forward whose ground
@@ -94,9 +99,10 @@ class PhysicsConfig:
     """Frames kept from each window before re-planning (≤ window)."""
     max_iter: int = 4
     """iLQR iterations per window."""
-    deriv_every: int = 4
-    """Finite-difference dynamics Jacobians every k steps, interpolated in between (4 with
-    4 substeps: the same Jacobians per second of motion as 2 with 2 substeps)."""
+    deriv_every: int = 8
+    """Finite-difference dynamics Jacobians every k video frames, interpolated in between.
+    Each costs ``substeps`` MuJoCo steps per perturbed coordinate, so 8 with 8 substeps
+    costs what 4 with 4 did."""
     n_alpha: int = 6
     """Line-search candidates, log-spaced in [alpha_min, 1]."""
     alpha_min: float = 1e-2
@@ -148,8 +154,9 @@ class PhysicsConfig:
     150 frames, multi: 3 mm against 10 mm: MPJPE 15.8 vs 16.5 mm, penetration mean 8.0
     vs 8.5 mm (max 96.0 vs 95.5), skating 0.96 vs 0.98 mm/frame. 0 and 6 mm were worse on
     bouts 0 and 2 (one run at 6 mm lost bout 2's arms: 35 mm)."""
-    floor_solref: tuple[float, float] = (0.01, 1.0)
-    """MuJoCo ``solref`` of floor contacts (see ``HumanoidConfig.floor_solref``). The soft
+    floor_solref: tuple[float, float] = (0.005, 1.0)
+    """MuJoCo ``solref`` of floor contacts (see ``HumanoidConfig.floor_solref``). (0.005, 1)
+    needs ≥ 5 substeps at 60 fps (time constant ≥ 2 steps): see ``substeps``. The soft
     floor is why feet sank: at (0.02, 1) the sole hull itself rests 11–12 mm into it. On
     ``cornerman bench physics`` (4 bouts, multi-person, each bout run alone), (0.01, 1) with
     4 substeps and ``deriv_every = 4`` against (0.02, 1) with 2 and 2: ground penetration
@@ -236,7 +243,7 @@ class PhysicsConfig:
     """w3 of eq. 5 (velocity tracking). Small: reference velocities of triangulated
     joints are noisy, and at the paper's 0.1 this term outweighs positions ~10×."""
     w_collision: float = 20.0
-    """w4 of eq. 5 (squared inter-person penetration depth). Bouts 0-3 (multi, one fixed
+    """w4 of eq. 5 (squared inter-person penetration depth). Bouts 0-3 (multi, 4 substeps, one fixed
     fit), capsule penetration max / body overlap max mm, skating mm/frame, MPJPE mm: 20 ->
     35.4 / 21.9, 0.79, 13.59; 200 -> 38.5 / 19.9, 0.78, 13.57; 1000 -> 40.1 / 20.0, 0.78, 13.59 (the
     paper's 20 kept: the differences are within the run-to-run spread of single bouts)."""
@@ -250,7 +257,7 @@ class PhysicsConfig:
     separating the reference first kept 70 % of their overlap (10: 29 %)."""
     w_skate: float = 10.0
     """Foot-contact term: squared horizontal speed of feet planted in the reference.
-    ``cornerman bench physics`` bouts 0-3 (multi, same fit), skating mm/frame / MPJPE mm:
+    ``cornerman bench physics`` bouts 0-3 (multi, one fixed fit, 4 substeps), skating mm/frame / MPJPE mm:
     0 -> 1.21 / 13.13, 2 -> 0.79 / 13.40, 5 -> 0.77 / 13.54, 10 -> 0.79 / 13.59, 50 ->
     0.84 / 13.65; on the 3D speed (the vertical too, against the foot rolling) at 10: 0.82 /
     13.91. The optimiser takes skating from 1.07 (its initial controls) to 0.79 in four
