@@ -243,10 +243,11 @@ class PhysicsConfig:
     """w3 of eq. 5 (velocity tracking). Small: reference velocities of triangulated
     joints are noisy, and at the paper's 0.1 this term outweighs positions ~10×."""
     w_collision: float = 20.0
-    """w4 of eq. 5 (squared inter-person penetration depth). Bouts 0-3 (multi, 4 substeps, one fixed
-    fit), capsule penetration max / body overlap max mm, skating mm/frame, MPJPE mm: 20 ->
-    35.4 / 21.9, 0.79, 13.59; 200 -> 38.5 / 19.9, 0.78, 13.57; 1000 -> 40.1 / 20.0, 0.78, 13.59 (the
-    paper's 20 kept: the differences are within the run-to-run spread of single bouts)."""
+    """w4 of eq. 5 (squared inter-person penetration depth). Bouts 0-3 (multi, 4 substeps,
+    one fixed fit), capsule penetration max / body overlap max mm, skating mm/frame, MPJPE
+    mm: 20 -> 35.4 / 21.9, 0.79, 13.59; 200 -> 38.5 / 19.9, 0.78, 13.57; 1000 -> 40.1 /
+    20.0, 0.78, 13.59 (the paper's 20 kept: the differences are within the run-to-run
+    spread of single bouts)."""
     w_residual: float = 10.0
     """Squared change (m²) of the residual root servos' targets that the iLQR makes
     (``CostWeights.w_residual``): 1 cm costs 0.001, a 4 cm overlap 0.03 at ``w_collision``.
@@ -257,8 +258,8 @@ class PhysicsConfig:
     separating the reference first kept 70 % of their overlap (10: 29 %)."""
     w_skate: float = 10.0
     """Foot-contact term: squared horizontal speed of feet planted in the reference.
-    ``cornerman bench physics`` bouts 0-3 (multi, one fixed fit, 4 substeps), skating mm/frame / MPJPE mm:
-    0 -> 1.21 / 13.13, 2 -> 0.79 / 13.40, 5 -> 0.77 / 13.54, 10 -> 0.79 / 13.59, 50 ->
+    ``cornerman bench physics`` bouts 0-3 (multi, one fixed fit, 4 substeps), skating
+    mm/frame / MPJPE mm: 0 -> 1.21 / 13.13, 2 -> 0.79 / 13.40, 5 -> 0.77 / 13.54, 10 -> 0.79 / 13.59, 50 ->
     0.84 / 13.65; on the 3D speed (the vertical too, against the foot rolling) at 10: 0.82 /
     13.91. The optimiser takes skating from 1.07 (its initial controls) to 0.79 in four
     iterations and no further (eight: 0.80)."""
