@@ -156,8 +156,9 @@ class PhysicsConfig:
     bouts 0 and 2 (one run at 6 mm lost bout 2's arms: 35 mm)."""
     floor_solref: tuple[float, float] = (0.005, 1.0)
     """MuJoCo ``solref`` of floor contacts (see ``HumanoidConfig.floor_solref``). (0.005, 1)
-    needs ≥ 5 substeps at 60 fps (time constant ≥ 2 steps): see ``substeps``. The soft
-    floor is why feet sank: at (0.02, 1) the sole hull itself rests 11–12 mm into it. On
+    needs ≥ 7 substeps at 60 fps (time constant ≥ 2 steps; with fewer the stage warns and
+    MuJoCo uses two steps, ``floor_timeconst_warning``): see ``substeps``. The soft floor
+    is why feet sank: at (0.02, 1) the sole hull itself rests 11–12 mm into it. On
     ``cornerman bench physics`` (4 bouts, multi-person, each bout run alone), (0.01, 1) with
     4 substeps and ``deriv_every = 4`` against (0.02, 1) with 2 and 2: ground penetration
     max 8.0 vs 17.3 mm, foot skating 3.1 vs 4.3 mm/frame, MPJPE 45.9 vs 47.9 mm, keypoint
@@ -425,6 +426,22 @@ def penetration_of_pose(scene: Scene, qpos: np.ndarray) -> np.ndarray:
     return mp.deepest_inter_person_mm(contacts, qpos.shape[0])
 
 
+def floor_timeconst_warning(cfg: PhysicsConfig, fps: float) -> str | None:
+    """A message when ``cfg.floor_solref``'s time constant is below two MuJoCo steps at
+    ``fps`` (MuJoCo then silently uses two steps: a softer floor than configured), else
+    None."""
+    tc = float(cfg.floor_solref[0])
+    dt = 1.0 / (fps * cfg.substeps)
+    if tc <= 0.0 or tc >= 2.0 * dt - 1e-12:
+        return None
+    need = int(np.ceil(2.0 / (fps * tc) - 1e-9))
+    return (
+        f"physics: floor_solref time constant {tc:g} s is below two steps ({2.0 * dt:.4g} s at "
+        f"{fps:g} fps with substeps={cfg.substeps}); MuJoCo uses {2.0 * dt:.4g} s, a softer floor. "
+        f"Use substeps >= {need} or a larger time constant."
+    )
+
+
 def humanoid_config(cfg: PhysicsConfig) -> HumanoidConfig:
     """The MJCF generator's settings of a physics stage configuration."""
     from pipeline.backends.mujoco_humanoid import HumanoidConfig
@@ -468,6 +485,8 @@ def run(
             n_views=kp.n_views[sl], reproj_err_px=kp.reproj_err_px[sl],
         )
     t_start = time.perf_counter()
+    if (msg := floor_timeconst_warning(cfg, kp.fps)) is not None:
+        log.warning(msg)
     rows = _select_persons(kp)
     pids = [int(kp.person_ids[r]) for r in rows]
     skels, skeleton_kind = build_skeletons(kp, rows, inputs.bodyfit, cfg)

@@ -104,6 +104,16 @@ def test_single_person_mode_and_config_checks() -> None:
         run(PhysicsInputs(empty), FAST)
 
 
+def test_a_floor_stiffer_than_two_steps_is_reported() -> None:
+    from pipeline.stages.physics import floor_timeconst_warning
+
+    assert floor_timeconst_warning(PhysicsConfig(), 60.0) is None  # 5 ms against 2 x 2.08 ms
+    msg = floor_timeconst_warning(PhysicsConfig(substeps=4), 60.0)  # 2 x 4.17 ms > 5 ms
+    assert msg is not None and "substeps >= 7" in msg and "0.00833" in msg
+    assert floor_timeconst_warning(PhysicsConfig(), 25.0) is not None  # 2 x 5 ms at 25 fps
+    assert floor_timeconst_warning(PhysicsConfig(floor_solref=(-5000.0, -100.0)), 25.0) is None  # direct stiffness
+
+
 def test_floor_settings_reach_the_mjcf_and_bad_ones_are_refused() -> None:
     from pipeline.stages.physics import humanoid_config
 
