@@ -97,8 +97,9 @@ class PhysicsConfig:
     """iLQR horizon in frames per receding-horizon window."""
     commit: int = 16
     """Frames kept from each window before re-planning (≤ window)."""
-    max_iter: int = 4
-    """iLQR iterations per window."""
+    max_iter: int = 8
+    """iLQR iterations per window (with ``jacobian_reuse`` 2: four sets of finite-difference
+    Jacobians, as 4 and 1 before)."""
     deriv_every: int = 8
     """Finite-difference dynamics Jacobians every k video frames, interpolated in between.
     Each costs ``substeps`` MuJoCo steps per perturbed coordinate, so 8 with 8 substeps
@@ -109,16 +110,17 @@ class PhysicsConfig:
     """Smallest line-search step."""
     fd_centered: bool = False
     """Centred finite differences (2× slower)."""
-    jacobian_reuse: int = 1
+    jacobian_reuse: int = 2
     """iLQR iterations that share one set of finite-difference dynamics Jacobians
-    (``ILQRConfig.jacobian_reuse``; 1 = fresh Jacobians at every iteration). More
-    iterations track better but cost more: ``cornerman bench physics`` (4 bouts, 150
-    frames, multi), against the defaults (``max_iter=4``, 1): ``max_iter=8,
-    jacobian_reuse=2`` gives MPJPE 37.9 → 31.3 mm, skating 1.58 → 1.41 mm/frame and
-    the same mean penetration (11.2 → 11.1 mm), but a higher penetration max (62.9 →
-    68.1 mm), a worst-bout ground penetration of 3.9 mm (1.0) and real-time factor
-    21.2 → 30.1; ``max_iter=8`` with fresh Jacobians tracked best (MPJPE ~30 mm) at
-    ~2× the finite-difference time."""
+    (``ILQRConfig.jacobian_reuse``; 1 = fresh Jacobians at every iteration). Bouts 0-3 of
+    ``cornerman bench physics`` (multi-person, one fixed fit, ``w_pos`` 100), MPJPE mm /
+    skating mm/frame / capsule penetration max, mean / body overlap max, mean mm / seconds
+    per bout: ``max_iter`` 4, reuse 1 -> 12.42 / 0.59 / 31.6, 0.87 / 24.2, 0.77 / 30; 6, 1
+    -> 12.24 / 0.58 / 30.8, 0.80 / 25.5, 0.72 / 41; 8, 1 -> 12.13 / 0.57 / 23.3, 0.65 /
+    21.8, 0.64 / 51; 8, 2 (the default) -> 11.92 / 0.59 / 22.7, 0.54 / 20.9, 0.64 / 44; 12,
+    3 -> 12.19 / 0.60 / 24.7, 0.51 / 22.0, 0.61 / 42. (At ``w_pos`` 10, on an earlier
+    simulation, more iterations had not paid: twelve on bout 0 gave MPJPE 13.19 against
+    13.08 mm with four.)"""
     rollout_threads: int = 1
     """Threads that roll the line-search candidates out together (same result either
     way). Measured on the 150-frame bench: no gain (rollouts 9.8 s on 1 thread, 10.3 s
