@@ -95,8 +95,14 @@ class PhysicsConfig:
     """Process only the first N frames (0 = all)."""
     window: int = 24
     """iLQR horizon in frames per receding-horizon window."""
-    commit: int = 16
-    """Frames kept from each window before re-planning (≤ window)."""
+    commit: int = 12
+    """Frames kept from each window before re-planning (≤ window). Bouts 0-3 of ``cornerman
+    bench physics`` (multi-person, one fixed fit, the other defaults), MPJPE mm / skating
+    mm/frame / capsule penetration max, mean / body overlap max, mean mm / seconds per bout:
+    16 -> 11.92 / 0.59 / 22.7, 0.54 / 20.9, 0.64 / 44; 12 (the default) -> 11.87 / 0.56 /
+    16.9, 0.45 / 19.9, 0.53 / 53; 8 -> 11.93 / 0.59 / 23.1, 0.51 / 20.7, 0.59 / 73; window 18
+    with 12 -> 12.08 / 0.59 / 19.2, 0.50 / 22.3, 0.64 / 45; window 32 with 16 -> 12.34 / 0.56
+    / 40.7, 1.07 / 27.1, 1.05."""
     max_iter: int = 8
     """iLQR iterations per window (with ``jacobian_reuse`` 2: four sets of finite-difference
     Jacobians, as 4 and 1 before)."""
@@ -113,7 +119,7 @@ class PhysicsConfig:
     jacobian_reuse: int = 2
     """iLQR iterations that share one set of finite-difference dynamics Jacobians
     (``ILQRConfig.jacobian_reuse``; 1 = fresh Jacobians at every iteration). Bouts 0-3 of
-    ``cornerman bench physics`` (multi-person, one fixed fit, ``w_pos`` 100), MPJPE mm /
+    ``cornerman bench physics`` (multi-person, one fixed fit, ``w_pos`` 100, commit 16), MPJPE mm /
     skating mm/frame / capsule penetration max, mean / body overlap max, mean mm / seconds
     per bout: ``max_iter`` 4, reuse 1 -> 12.42 / 0.59 / 31.6, 0.87 / 24.2, 0.77 / 30; 6, 1
     -> 12.24 / 0.58 / 30.8, 0.80 / 25.5, 0.72 / 41; 8, 1 -> 12.13 / 0.57 / 23.3, 0.65 /
