@@ -192,6 +192,30 @@ def test_plant_feet_holds_planted_foot_still() -> None:
     assert np.allclose(out[:, 0, 3:], xyz[:, 0, 3:])
 
 
+def test_plant_feet_catches_the_landing_frame() -> None:
+    """A foot that swings in low and lands at frame 10 (still from there on): the
+    5-frame smoothed speed finds the plant two frames late; the one-frame extension
+    starts it a frame earlier, not before the touchdown, held at the stance position."""
+    from pipeline.backends.mujoco_reference import plant_feet
+
+    names = ("left_heel", "left_big_toe", "left_small_toe")
+    F, land, fps = 30, 10, 60.0
+    base = np.array([[-0.05, 0.1, 0.02], [0.15, 0.1, 0.02], [0.12, 0.15, 0.02]])
+    step = np.zeros(F)  # forward position of the foot (m): decelerating swing, then still
+    step[:land] = -0.01 * (land - np.arange(land)) ** 1.5
+    xyz = np.repeat(base[None, None], F, axis=0).copy()
+    xyz[:, 0, :, 0] += step[:, None]
+    xyz[:land, 0, :, 2] += 0.003 * (land - np.arange(land))[:, None]  # coming down to the floor
+    w = np.ones((F, 1, 3))
+    _, late = plant_feet(xyz, w, names, fps, np.array([0.02]), extend_frames=0)
+    out, contact = plant_feet(xyz, w, names, fps, np.array([0.02]))
+    first_late, first = int(np.argmax(late[:, 0, 0])), int(np.argmax(contact[:, 0, 0]))
+    assert first_late > land  # the smoothed speed alone misses the touchdown
+    assert first == first_late - 1 and first >= land and contact[first:, 0, 0].all()
+    assert np.abs(np.diff(out[first:, 0], axis=0)).max() < 1e-9  # held from the touchdown
+    assert np.allclose(out[first:, 0], base)
+
+
 def test_separate_reference_removes_overlap_keeping_feet() -> None:
     """Two athletes 0.16 m apart (bodies overlap by centimetres): every frame of the
     separated reference is contact-free, and legs/root height barely move."""
