@@ -414,7 +414,10 @@ def plant_feet(
     ``extend_frames`` frames at either end where the foot is low (within
     ``height_tol_m``), and held at the median of its core frames. Bouts 0–3 (multi,
     same fitted input): the simulation's skating 0.51 → 0.42 mm/frame at the same
-    MPJPE (11.90 → 11.94 mm); 2 frames overshoot (0.49 mm/frame, 12.77 mm).
+    MPJPE (11.90 → 11.94 mm); 2 frames overshoot (0.49 mm/frame, 12.77 mm); extending
+    only the start by 1 or 2 frames gave 0.47 / 11.79 and 0.47 / 11.88. On
+    ``cornerman bench physics`` (bouts 0–3, refitted): skating 0.51 → 0.43 mm/frame (its
+    stance edges 1.29 → 0.59), MPJPE 11.7 → 12.0 mm.
 
     targets: (frames, persons, sites, 3); weight: (frames, persons, sites).
     Returns (targets, contact (frames, persons, 2) for left/right).
