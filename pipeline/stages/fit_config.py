@@ -54,7 +54,7 @@ class FitConfig:
     the penalty is quadratic (jitter), above it linear (genuine fast accelerations such as
     punches are penalised less). 0 = plain squared penalty."""
 
-    accel_whole_body: float = 0.2
+    accel_whole_body: float = 0.3
     """Weight, relative to ``w_accel``, of the whole-body part of the acceleration penalty:
     above the feet, each keypoint's acceleration is split into the mean acceleration of
     those keypoints (footwork, weight shifts) and the keypoint's own relative to it, which
@@ -64,8 +64,7 @@ class FitConfig:
     300 frames), MPJPE 10.15 → 9.59, 10.91 → 10.18, 11.04 → 10.24 mm and acceleration error
     3.96 → 3.86, 3.92 → 3.80, 3.94 → 3.78 mm/f²; 2 cameras (seed 0) 23.5 → 22.9 mm; foot
     skating unchanged (150 frames, seeds 0-3: 1.64 → 1.63 mm/frame). 0.2 and 0.5 are within
-    0.2 mm; splitting the feet too raised their skating by 20-40 %. 0.3 until 2026-11-26; 0.2
-    now, with ``accel_adapt_after`` 80 (see there)."""
+    0.2 mm; splitting the feet too raised their skating by 20-40 %."""
 
     w_jerk: float = 150.0
     """Squared third difference of the fitted keypoints (m^2 per frame^6; ours), weighted per
@@ -81,7 +80,7 @@ class FitConfig:
     time. On seed 0, 100 alone (the rest as before): 9.68 / 3.07; applied in every
     iteration, unweighted: 30 → 9.87 / 3.10, 300 → 12.00 / 3.46."""
 
-    accel_adapt_after: int = 80
+    accel_adapt_after: int = 90
     """Iterations of the full pass (``pose_iters``) after which the acceleration penalty is
     re-weighted per keypoint and frame from the motion fitted so far; the remaining
     iterations use those weights in place of the pseudo-Huber (``fit_common.
@@ -91,16 +90,7 @@ class FitConfig:
     MPJPE / acceleration error: seed 0 9.59 / 3.86 → 9.19 / 3.59 mm, mm/f²; seed 1
     10.18 / 3.80 → 9.67 / 3.51; seed 2 10.24 / 3.78 → 9.55 / 3.47; 2 cameras (seed 0)
     22.90 / 4.92 → 23.08 / 4.75. Same number of iterations, so the same time. Re-weighting
-    twice (after 70 and 110) was no better (9.70 / 3.65, seed 0). 100 before ``w_jerk``; 90
-    until 2026-11-26. 80 with ``accel_whole_body`` 0.2 instead of 90 with 0.3 (4 cameras, 300
-    frames, MPJPE / acceleration error): seed 0 9.16 / 3.01 → 9.24 / 2.97 (−30.2 → −31.2 %
-    against the filtered triangulation), seed 1 9.83 / 3.13 → 9.91 / 3.09 (−31.0 → −32.0 %),
-    seed 2 10.35 / 3.35 → 10.35 / 3.31 (−29.3 → −30.2 %); 2 cameras (seed 0) 23.41 / 4.43 →
-    23.77 / 4.54. Seed 2 alone: 80 → 10.49 / 3.33, 70 → 10.68 / 3.32, 100 → 10.28 / 3.41;
-    ``accel_whole_body`` 0.2 → 10.25 / 3.35, 0.1 → 10.18 / 3.37, 0.5 → 10.46 / 3.40; more
-    smoothing elsewhere was worse (``accel_adapt_gain`` 8 → 3.38, ``w_jerk`` 400 → 3.40,
-    ``w_accel`` 500 → 3.46, ``accel_adapt_window`` 3 → 3.44); ``pose_iters`` 200 → 9.75 /
-    3.34 at 1.2× the time."""
+    twice (after 70 and 110) was no better (9.70 / 3.65, seed 0). 100 before ``w_jerk``."""
 
     accel_adapt_scale_m: float = 0.002
     """s of the re-weighting (m per frame²): the weight is ``accel_adapt_gain · s² / (s² +
