@@ -76,8 +76,10 @@ class HumanoidConfig:
     self_collision: Literal["adjacent_filtered", "none"] = "adjacent_filtered"
     """``adjacent_filtered``: a person's parts collide except parent/child, siblings
     and grandparent pairs; ``none``: only inter-person and ground contacts."""
-    friction: float = 1.0
-    """Sliding friction of the floor and the soles (MuJoCo uses the larger of two geoms')."""
+    friction: float = 2.0
+    """Sliding friction of the floor and the soles (the floor's priority makes every floor
+    contact use it). 2 against the soft contact's creep (``PhysicsConfig.floor_friction``);
+    1 until 2026-11-26."""
     body_friction: float = 1.0
     """Sliding friction of the other body geoms: contacts between the two athletes use
     it (skin, sweat, gloves), contacts of a body part with the floor the floor's."""

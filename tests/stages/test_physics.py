@@ -117,9 +117,12 @@ def test_a_floor_stiffer_than_two_steps_is_reported() -> None:
 def test_floor_settings_reach_the_mjcf_and_bad_ones_are_refused() -> None:
     from pipeline.stages.physics import humanoid_config
 
-    cfg = PhysicsConfig(floor_solref=(0.03, 1.1), floor_solimp=(0.8, 0.9, 0.002), floor_margin_m=0.003, armature=0.1)
+    cfg = PhysicsConfig(floor_solref=(0.03, 1.1), floor_solimp=(0.8, 0.9, 0.002), floor_margin_m=0.003, armature=0.1, floor_friction=1.5)
     h = humanoid_config(cfg)
     assert (h.floor_solref, h.floor_solimp, h.floor_margin_m, h.armature) == ((0.03, 1.1), (0.8, 0.9, 0.002), 0.003, 0.1)
+    assert h.friction == 1.5
+    with pytest.raises(ValueError, match="floor_friction must be > 0"):
+        PhysicsConfig(floor_friction=0.0)
     # JSON stage configs give lists: they are accepted as tuples.
     assert humanoid_config(PhysicsConfig(floor_solref=[0.02, 1.0])).floor_solref == (0.02, 1.0)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="floor_solref"):
