@@ -442,8 +442,8 @@ def plant_feet(
                 v[1:] = np.linalg.norm(np.diff(centre[:, :2], axis=0), axis=-1) * fps
                 v[0] = v[1]
             v = uniform_filter1d(v, 5, mode="nearest")
-            on = ok & (z < sole_m[i] + height_tol_m) & (v < speed_max_m_s)
             low = ok & (z < sole_m[i] + height_tol_m)
+            on = low & (v < speed_max_m_s)
             # Keep runs of at least min_frames.
             f = 0
             while f < F:
