@@ -505,8 +505,20 @@ def run(
     """Simulate all persons of ``inputs.keypoints``; see the module docstring.
 
     Raises ``ValueError`` when no person has enough valid joints or the joint set
-    lacks the COCO-17 joints.
+    lacks the COCO-17 joints. BLAS runs on one thread meanwhile, so the result does not
+    depend on the machine's core count (``pipeline.backends.blas_threads``).
     """
+    from pipeline.backends.blas_threads import single_blas_thread
+
+    with single_blas_thread():
+        return _run(inputs, cfg, progress)
+
+
+def _run(
+    inputs: PhysicsInputs,
+    cfg: PhysicsConfig,
+    progress: Callable[[int, int, str], None] | None,
+) -> PhysicsOutput:
     from pipeline.backends import mujoco_physics as mp
     from pipeline.backends.mujoco_ilqr import ILQRConfig
     from pipeline.backends.mujoco_tracking import CostWeights

@@ -71,6 +71,30 @@ def test_two_person_clip_ends_with_less_penetration() -> None:
     assert pen_raw[-1] < 0.5 * pen_in[-1]
 
 
+def test_the_result_does_not_depend_on_the_blas_thread_count() -> None:
+    """OpenBLAS sums a product's parts in another order on 2 threads than on 1, and the
+    iLQR grows that rounding into another trajectory (a 150-frame bench bout: deepest
+    overlap 25.6 against 6.3 mm), so the stage pins BLAS to one thread and restores it.
+    This short clip happens to agree either way; the thread count seen inside the stage
+    is what fails without the pin."""
+    from threadpoolctl import threadpool_limits
+
+    from pipeline.backends.blas_threads import blas_threads
+
+    kp = _facing_pair(0.18)
+    with threadpool_limits(limits=1, user_api="blas"):
+        one = run(PhysicsInputs(kp), FAST)  # also loads every BLAS the stage uses
+    inside: list[int] = []
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        two = run(PhysicsInputs(kp), FAST, progress=lambda d, n, m: inside.extend(blas_threads()))
+        assert blas_threads() == before  # restored afterwards
+    assert before and set(before) == {2}
+    assert inside and set(inside) == {1}
+    assert np.array_equal(two.result.qpos, one.result.qpos)
+    assert np.array_equal(two.result.ctrl, one.result.ctrl)
+
+
 def test_body_penetration_measures_overlap_of_the_humanoids() -> None:
     from pipeline.stages.physics import body_penetration_mm
 
