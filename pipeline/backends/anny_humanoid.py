@@ -124,9 +124,11 @@ def _joints(name: str, head: dict[str, np.ndarray]) -> tuple[JointDef, ...]:
     J = JointDef
     X, Y, Z = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
     if name == "spine":
-        return (J("spine_x", X, (-0.4, 0.4), 1.0), J("spine_y", Y, (-0.4, 0.8), 1.0), J("spine_z", Z, (-0.5, 0.5), 0.8))
+        # Extension to -0.6: the body merges two anny spine bones, each allowed -0.3 by
+        # the fit's prior (``anny_priors._LIMITS``); -0.4 held the bench's boxers up.
+        return (J("spine_x", X, (-0.4, 0.4), 1.0), J("spine_y", Y, (-0.6, 0.8), 1.0), J("spine_z", Z, (-0.5, 0.5), 0.8))
     if name == "torso":
-        return (J("chest_x", X, (-0.4, 0.4), 1.0), J("chest_y", Y, (-0.4, 0.6), 1.0), J("chest_z", Z, (-0.5, 0.5), 0.8))
+        return (J("chest_x", X, (-0.4, 0.4), 1.0), J("chest_y", Y, (-0.6, 0.6), 1.0), J("chest_z", Z, (-0.5, 0.5), 0.8))
     if name == "neck":
         return (J("neck_x", X, (-0.7, 0.7), 0.3), J("neck_y", Y, (-0.8, 1.0), 0.3), J("neck_z", Z, (-1.3, 1.3), 0.3))
     if name == "head":
@@ -138,7 +140,9 @@ def _joints(name: str, head: dict[str, np.ndarray]) -> tuple[JointDef, ...]:
         return (lo, hi) if s > 0 else (-hi, -lo)
 
     if name.endswith("_clavicle"):  # x: elevation, z: pro/retraction
-        return (J(f"{side}_clavicle_x", X, lr(-0.6, 0.8), 0.3), J(f"{side}_clavicle_z", Z, (-0.6, 0.6), 0.3))
+        # z to ±0.9: the clavicle and shoulder01 bones it merges, ±0.4 and ±0.5 in the
+        # fit's prior; at ±0.6 the girdles of the bench's boxers sat at the limit.
+        return (J(f"{side}_clavicle_x", X, lr(-0.6, 0.8), 0.3), J(f"{side}_clavicle_z", Z, (-0.9, 0.9), 0.3))
     if name.endswith("_upper_arm"):
         # Flexion first (as humanoid_skeleton: y-x-z is singular only at 90° abduction).
         # x ranges: the rest arm is already abducted ~0.7 rad (A-pose).
@@ -164,7 +168,7 @@ def _joints(name: str, head: dict[str, np.ndarray]) -> tuple[JointDef, ...]:
         return (
             J(f"{side}_hip_x", X, lr(-0.5, 1.1), 1.0),
             J(f"{side}_hip_y", Y, (-2.3, 0.6), 1.0),
-            J(f"{side}_hip_z", Z, (-0.9, 0.9), 0.6),
+            J(f"{side}_hip_z", Z, (-1.1, 1.1), 0.6),  # a boxer pivots on the lead foot: ±0.9 was hit
         )
     if name.endswith("_shin"):  # + = flexion (shank backwards): +y made orthogonal to the shin
         sh = _unit(head[f"ankle_{S}"] - head[f"knee_{S}"])

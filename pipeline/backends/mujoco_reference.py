@@ -70,6 +70,7 @@ def inverse_kinematics(
     sole_lift_m: float = 0.0,
     flat_weight: float = 100.0,
     restart_tol_m: float = 0.05,
+    posture_weight: float = 0.0,
 ) -> np.ndarray:
     """Per-frame damped least squares of sites onto targets, warm-started in time.
 
@@ -81,8 +82,11 @@ def inverse_kinematics(
     ~5° (up to 10°) and ~7 mm up, which the simulated foot, flat on the floor, fights
     by rocking on its sole. A person whose worst site misses its target by more than
     ``restart_tol_m`` after a frame's iterations is solved again from its rest joint
-    angles, and the better of the two kept. Returns qpos (frames, nq), hinge angles
-    clamped to their ranges.
+    angles, and the better of the two kept. ``posture_weight`` > 0 adds
+    ``posture_weight · Σ (hinge − rest)²`` (rad²; the sites' residuals are in m): the
+    keypoints leave some joints free (trunk twist against the shoulder girdle, hip
+    twist against the knee's), and each frame, warm-started from the last, let them
+    drift to their limits. Returns qpos (frames, nq), hinge angles clamped to their ranges.
     """
     m, lay = scene.model, scene.layout
     d = mujoco.MjData(m)
@@ -98,6 +102,7 @@ def inverse_kinematics(
         q[p.qpos_adr + 3 : p.qpos_adr + 7] = quat
     hinge_j = [j for j in range(m.njnt) if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE]
     hq = np.array([m.jnt_qposadr[j] for j in hinge_j], dtype=np.int64)
+    hv = np.array([m.jnt_dofadr[j] for j in hinge_j], dtype=np.int64)
     lo, hi = m.jnt_range[hinge_j, 0], m.jnt_range[hinge_j, 1]
     out = np.zeros((F, m.nq))
     jac = np.zeros((3, m.nv))
@@ -132,6 +137,11 @@ def inverse_kinematics(
                     rh = d.xpos[body, 2] - (h0 + sole_lift_m)
                     JtJ += flat_weight * (Jt.T @ Jt + np.outer(jac[2], jac[2]))
                     Jtr += flat_weight * (Jt.T @ rt + jac[2] * rh)
+            if posture_weight > 0:
+                # A weak pull of every hinge towards its rest angle (rad² against the
+                # sites' m²): keeps the joints the keypoints do not pin down from drifting.
+                JtJ[hv, hv] += posture_weight
+                Jtr[hv] += posture_weight * (q[hq] - m.qpos0[hq])
             lam = damping * (10.0 if (cold and it < 10) else 1.0)
             dq[:] = -np.linalg.solve(JtJ + lam * np.eye(m.nv) + 1e-6 * np.diag(np.diag(JtJ)), Jtr)
             mujoco.mj_integratePos(m, q, dq, 1.0)
@@ -239,6 +249,7 @@ def build_reference(
     ff_friction: float = 0.3,
     ff_smooth_frames: float = 0.0,
     separation_clearance_m: float = 0.003,
+    posture_weight: float = 0.0,
 ) -> tuple[Reference, np.ndarray, np.ndarray]:
     """IK reference + body-frame targets. Returns (reference, targets_world, weight).
 
@@ -260,7 +271,9 @@ def build_reference(
         targets, weight, contact = planted_site_targets(scene, kp, person_rows)
     else:
         targets, weight = site_targets(scene, kp, person_rows)
-    qref = inverse_kinematics(scene, targets, weight, flat=contact if flat_feet else None, sole_lift_m=sole_lift_m)
+    qref = inverse_kinematics(
+        scene, targets, weight, flat=contact if flat_feet else None, sole_lift_m=sole_lift_m, posture_weight=posture_weight
+    )
     F, P, S = weight.shape
     if separate and P > 1:
         qref = separate_reference(scene, qref, clearance_m=separation_clearance_m)

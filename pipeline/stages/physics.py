@@ -168,6 +168,19 @@ class PhysicsConfig:
     separate_reference: bool = True
     """Free each frame of the multi-person reference of inter-person overlap before
     tracking it (``mujoco_separation.separate_reference``)."""
+    ik_posture_weight: float = 3e-4
+    """Pull of the reference's inverse kinematics towards the rest joint angles
+    (``mujoco_reference.inverse_kinematics(posture_weight)``, per rad² against the sites'
+    m²). Without it the joints the keypoints leave free drifted from frame to frame:
+    on bout 1 both shoulder girdles sat at their ±0.6 rad yaw limit in 62 of 150 frames,
+    turned against the trunk's twist, while the fitted body's clavicles turn < 0.13 rad.
+    ``cornerman bench physics`` bouts 0-3 (multi, fit input, BLAS on one thread), skating
+    mm/frame / MPJPE mm / capsule penetration max, mean mm: 0 -> 0.344 / 11.84 / 19.1,
+    0.35; 1e-4 -> 0.335 / 11.46 / 35.5, 0.61; 3e-4 -> 0.293 / 11.39 / 14.6, 0.33; 1e-3
+    -> 0.280 / 11.81 / 14.9, 0.39 (with the wider clavicle, spine and hip ranges of
+    ``anny_humanoid._joints``: 3e-4 -> 0.298 / 11.29 / 11.4, 0.30; 1e-3 -> 0.285 /
+    11.87 / 14.5, 0.39). Pulling only the girdles and the trunk's twist, 1e-2: 0.397 /
+    12.40: the trunk does twist."""
     separation_clearance_m: float = 0.003
     """Gap the separation leaves between the athletes' geoms. Synthetic bench, bouts 0-7,
     150 frames, multi: 3 mm against 10 mm: MPJPE 15.8 vs 16.5 mm, penetration mean 8.0
@@ -314,7 +327,7 @@ class PhysicsConfig:
             raise ValueError(f"PhysicsConfig.floor_solimp must be (d0, dwidth in (0, 1), width > 0), got {self.floor_solimp}")
         if self.glove_radius_m < 0.0:
             raise ValueError(f"PhysicsConfig.glove_radius_m must be >= 0, got {self.glove_radius_m}")
-        for name in ("feedforward_smooth_frames", "separation_clearance_m", "w_residual", "w_reg", "w_pos", "w_vel", "w_collision", "w_skate"):
+        for name in ("feedforward_smooth_frames", "separation_clearance_m", "ik_posture_weight", "w_residual", "w_reg", "w_pos", "w_vel", "w_collision", "w_skate"):
             if not getattr(self, name) >= 0.0:  # also refuses NaN
                 raise ValueError(f"PhysicsConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not self.floor_friction > 0.0:
@@ -582,6 +595,7 @@ def _run(
             sub, kp, [rows[i] for i in g], separate=cfg.separate_reference, substeps=cfg.substeps if cfg.schedule else 0,
             flat_feet=cfg.flat_feet, sole_lift_m=sole_lift, ff_friction=cfg.feedforward_friction,
             ff_smooth_frames=cfg.feedforward_smooth_frames, separation_clearance_m=cfg.separation_clearance_m,
+            posture_weight=cfg.ik_posture_weight,
         )
 
         def prog(d: int, n: int, msg: str, _g: list[int] = g) -> None:

@@ -259,3 +259,42 @@ def test_inverse_kinematics_restarts_a_person_left_far_from_its_targets() -> Non
     assert worst_error_m(stuck, 2) > 0.05
     assert worst_error_m(fixed, 2) < 0.01
     assert worst_error_m(fixed, 3) < 0.01
+
+
+def test_inverse_kinematics_posture_weight_stops_free_joints_drifting() -> None:
+    """Noisy keypoints of a person standing still: each frame, warm-started from the
+    last, lets the joints the keypoints leave free (the upper arm's twist) wander; the
+    posture pull holds them near rest at the same site error."""
+    scene = _one_person_scene()
+    m = scene.model
+    d = mujoco.MjData(m)
+    q0 = m.qpos0.copy()
+    q0[2] += 0.95
+    d.qpos[:] = q0
+    mujoco.mj_kinematics(m, d)
+    rest = d.site_xpos[scene.site_ids[0]].copy()
+    frames = 120
+    targets = rest[None, None] + np.random.default_rng(0).normal(0.0, 0.01, (frames, 1, *rest.shape))
+    weight = np.ones(targets.shape[:3])
+    hinges = [j for j in range(m.njnt) if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE]
+    hq = np.array([m.jnt_qposadr[j] for j in hinges])
+
+    def drift_and_error(posture_weight: float) -> tuple[float, float]:
+        q = inverse_kinematics(scene, targets, weight, posture_weight=posture_weight)
+        drift = float(np.abs(q[-20:, hq]).mean(axis=0).max())  # the most-wandered hinge, rad
+        err = []
+        for f in range(frames):
+            d.qpos[:] = q[f]
+            mujoco.mj_kinematics(m, d)
+            err.append(np.linalg.norm(d.site_xpos[scene.site_ids[0]] - targets[f, 0], axis=-1).mean())
+        return drift, float(np.mean(err))
+
+    free_drift, free_err = drift_and_error(0.0)
+    held_drift, held_err = drift_and_error(3e-4)
+    assert free_drift > 0.8
+    assert held_drift < 0.3
+    assert abs(held_err - free_err) < 0.0005
+    with pytest.raises(ValueError, match="ik_posture_weight"):
+        from pipeline.stages.physics import PhysicsConfig
+
+        PhysicsConfig(ik_posture_weight=-1.0)
