@@ -287,12 +287,17 @@ class PhysicsConfig:
     w_vel: float = 0.003
     """w3 of eq. 5 (velocity tracking). Small: reference velocities of triangulated
     joints are noisy, and at the paper's 0.1 this term outweighs positions ~10×."""
-    w_collision: float = 20.0
-    """w4 of eq. 5 (squared inter-person penetration depth). Bouts 0-3 (multi, 4 substeps,
-    one fixed fit), capsule penetration max / body overlap max mm, skating mm/frame, MPJPE
-    mm: 20 -> 35.4 / 21.9, 0.79, 13.59; 200 -> 38.5 / 19.9, 0.78, 13.57; 1000 -> 40.1 /
-    20.0, 0.78, 13.59 (the paper's 20 kept: the differences are within the run-to-run
-    spread of single bouts)."""
+    w_collision: float = 1000.0
+    """w4 of eq. 5 (squared inter-person penetration depth, m², over every pair of geoms of
+    different athletes, also those the simulation does not collide). The paper's 20 sits
+    beside its ``w_pos`` 10; beside our 100 it let a swinging foot sink 27 mm into the
+    other athlete's planted foot (bout 3). ``cornerman bench physics`` bouts 0-3 (multi,
+    fit input), body overlap max / mean mm, capsule max / mean mm, skating mm/frame, MPJPE
+    mm: 20 -> 23.6 / 0.60, 11.4 / 0.30, 0.298, 11.29; 200 (the paper's ratio to
+    ``w_pos``) -> 14.0 / 0.42, 11.7 / 0.28, 0.310, 11.39; 1000 -> 9.7 / 0.24, 11.7 /
+    0.29, 0.316, 11.42; 3000 -> 10.1 / 0.24, 12.7 / 0.29, 0.304, 11.41. (At ``w_pos`` 10
+    and 4 substeps, 20 / 200 / 1000 had made no difference: capsule max 35.4 / 38.5 /
+    40.1 mm, body max 21.9 / 19.9 / 20.0 mm.)"""
     w_residual: float = 10.0
     """Squared change (m²) of the residual root servos' targets that the iLQR makes
     (``CostWeights.w_residual``): 1 cm costs 0.001, a 4 cm overlap 0.03 at ``w_collision``.
