@@ -523,12 +523,19 @@ def run(
     """Simulate all persons of ``inputs.keypoints``; see the module docstring.
 
     Raises ``ValueError`` when no person has enough valid joints or the joint set
-    lacks the COCO-17 joints. BLAS runs on one thread meanwhile, so the result does not
-    depend on the machine's core count (``pipeline.backends.blas_threads``).
-    """
-    from pipeline.backends.blas_threads import single_blas_thread
+    lacks the COCO-17 joints.
 
-    with single_blas_thread():
+    BLAS runs on one thread meanwhile, so the result does not depend on the machine's
+    core count. The iLQR is chaotic, and OpenBLAS sums a matrix product's parts in
+    another order on 2 threads than on 1: bench bout 2 (multi-person) ended with its
+    deepest capsule overlap at 25.6 mm with ``OMP_NUM_THREADS=2`` and 6.3 mm with 1; it
+    is 6.3 either way with the pin, at the same backward-pass time (the matrices are
+    ≈ 250 × 250). The limit is the BLAS library's own, process-wide setting; the job
+    worker runs each job in its own process.
+    """
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
         return _run(inputs, cfg, progress)
 
 

@@ -294,7 +294,3 @@ def test_inverse_kinematics_posture_weight_stops_free_joints_drifting() -> None:
     assert free_drift > 0.8
     assert held_drift < 0.3
     assert abs(held_err - free_err) < 0.0005
-    with pytest.raises(ValueError, match="ik_posture_weight"):
-        from pipeline.stages.physics import PhysicsConfig
-
-        PhysicsConfig(ik_posture_weight=-1.0)

@@ -77,9 +77,10 @@ def test_the_result_does_not_depend_on_the_blas_thread_count() -> None:
     overlap 25.6 against 6.3 mm), so the stage pins BLAS to one thread and restores it.
     This short clip happens to agree either way; the thread count seen inside the stage
     is what fails without the pin."""
-    from threadpoolctl import threadpool_limits
+    from threadpoolctl import threadpool_info, threadpool_limits
 
-    from pipeline.backends.blas_threads import blas_threads
+    def blas_threads() -> list[int]:
+        return [int(i["num_threads"]) for i in threadpool_info() if i.get("user_api") == "blas"]
 
     kp = _facing_pair(0.18)
     with threadpool_limits(limits=1, user_api="blas"):
@@ -123,6 +124,8 @@ def test_single_person_mode_and_config_checks() -> None:
     assert err < 0.05
     with pytest.raises(ValueError, match="commit"):
         PhysicsConfig(window=4, commit=5)
+    with pytest.raises(ValueError, match="ik_posture_weight"):
+        PhysicsConfig(ik_posture_weight=-1.0)
     empty = kp.replace(valid=np.zeros_like(kp.valid))
     with pytest.raises(ValueError, match="no person"):
         run(PhysicsInputs(empty), FAST)
