@@ -22,6 +22,7 @@ normal n (geom1 → geom2): ∂dist/∂q = nᵀ (J_body2(p) − J_body1(p)).
 
 from __future__ import annotations
 
+import copy
 import threading
 from dataclasses import dataclass
 
@@ -57,6 +58,9 @@ class CostWeights:
     w_skate: float = 10.0
     """Squared horizontal velocity (m²/s²) of the foot points of feet planted in the
     reference (no sliding of stance feet)."""
+    collision_clearance_m: float = 0.0
+    """Gap the collision term asks for: it penalises (clearance − distance)² between
+    geoms of different athletes closer than this (0: only overlaps)."""
 
 
 @dataclass(frozen=True)
@@ -151,6 +155,12 @@ class TrackingCost:
         (``Scene.probe_model``: every pair of the athletes' geoms, also the arm-arm pairs
         the simulated ``model`` leaves out); None: ``model``'s own contacts."""
         self.model = model
+        if weights.collision_clearance_m > 0.0:
+            # Contacts are generated within a geom's margin: a copy of the probe with
+            # the clearance as margin reports pairs closer than it (the simulation's own
+            # model is not touched).
+            probe = copy.deepcopy(probe if probe is not None else model)
+            probe.geom_margin[layout.geom_person >= 0] = weights.collision_clearance_m
         self._probe = probe
         self._probe_data = threading.local()
         self.layout = layout
@@ -252,8 +262,10 @@ class TrackingCost:
         return np.concatenate(rs), (np.vstack(js) if with_jac else None)
 
     def _collision(self, data: mujoco.MjData, with_jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """Depths by which pairs of the athletes' geoms fall short of the clearance."""
         if self._probe is None:
             return collision_depths(self.model, data, self.layout.geom_person, with_jac)
+        gap = self.w.collision_clearance_m
         pd = getattr(self._probe_data, "d", None)
         if pd is None:  # one per thread: line-search rollouts may run on threads
             pd = self._probe_data.d = mujoco.MjData(self._probe)
@@ -261,7 +273,8 @@ class TrackingCost:
         mujoco.mj_kinematics(self._probe, pd)
         mujoco.mj_comPos(self._probe, pd)
         mujoco.mj_collision(self._probe, pd)
-        return collision_depths(self._probe, pd, self.layout.geom_person, with_jac)
+        depth, J = collision_depths(self._probe, pd, self.layout.geom_person, with_jac, max_dist_m=gap)
+        return depth + gap, J
 
     def set_residual(self, on: bool, torque_limit_nm: np.ndarray | None = None, saturation_rad: float = 0.1) -> None:
         """Enable the residual root torque: a PD on each root orientation towards the

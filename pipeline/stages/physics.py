@@ -298,6 +298,16 @@ class PhysicsConfig:
     0.29, 0.316, 11.42; 3000 -> 10.1 / 0.24, 12.7 / 0.29, 0.304, 11.41. (At ``w_pos`` 10
     and 4 substeps, 20 / 200 / 1000 had made no difference: capsule max 35.4 / 38.5 /
     40.1 mm, body max 21.9 / 19.9 / 20.0 mm.)"""
+    collision_clearance_m: float = 0.010
+    """Gap the collision term of the iLQR asks for between geoms of different athletes:
+    it penalises (clearance − distance)², so near-misses cost a little too and a limb
+    heading into the other athlete is turned before it touches. ``cornerman bench
+    physics`` bouts 0-3 (multi, one fixed fit each, ``w_collision`` 1000), body overlap
+    max / mean mm, capsule max / mean mm, skating mm/frame, MPJPE mm: 0 -> 9.7 / 0.24,
+    11.7 / 0.29, 0.316, 11.42; 5 mm -> 8.4 / 0.17, 11.0 / 0.33, 0.312, 11.45; 8 mm ->
+    7.8 / 0.13, 11.3 / 0.23, 0.319, 11.39; 10 mm -> 3.5 / 0.06, 11.2 / 0.32, 0.314,
+    11.51 (per bout, deepest body overlap 0 / 0 / 10.3 / 3.6 against 10.8 / 0.2 / 11.6 /
+    16.1 at 0; what is left is foot in foot)."""
     w_residual: float = 10.0
     """Squared change (m²) of the residual root servos' targets that the iLQR makes
     (``CostWeights.w_residual``): 1 cm costs 0.001, a 4 cm overlap 0.03 at ``w_collision``.
@@ -332,7 +342,7 @@ class PhysicsConfig:
             raise ValueError(f"PhysicsConfig.floor_solimp must be (d0, dwidth in (0, 1), width > 0), got {self.floor_solimp}")
         if self.glove_radius_m < 0.0:
             raise ValueError(f"PhysicsConfig.glove_radius_m must be >= 0, got {self.glove_radius_m}")
-        for name in ("feedforward_smooth_frames", "separation_clearance_m", "ik_posture_weight", "w_residual", "w_reg", "w_pos", "w_vel", "w_collision", "w_skate"):
+        for name in ("feedforward_smooth_frames", "separation_clearance_m", "ik_posture_weight", "collision_clearance_m", "w_residual", "w_reg", "w_pos", "w_vel", "w_collision", "w_skate"):
             if not getattr(self, name) >= 0.0:  # also refuses NaN
                 raise ValueError(f"PhysicsConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not self.floor_friction > 0.0:
@@ -585,7 +595,10 @@ def _run(
             jacobian_reuse=cfg.jacobian_reuse,
             rollout_threads=cfg.rollout_threads,
         ),
-        weights=CostWeights(cfg.w_reg, cfg.w_pos, cfg.w_vel, cfg.w_collision, w_skate=cfg.w_skate, w_residual=cfg.w_residual),
+        weights=CostWeights(
+            cfg.w_reg, cfg.w_pos, cfg.w_vel, cfg.w_collision, w_skate=cfg.w_skate, w_residual=cfg.w_residual,
+            collision_clearance_m=cfg.collision_clearance_m,
+        ),
         residual=cfg.residual_root,
         fallback_tol_m=cfg.fallback_tol_m,
         residual_torque_frac=cfg.residual_force_frac,
