@@ -298,16 +298,20 @@ class PhysicsConfig:
     0.29, 0.316, 11.42; 3000 -> 10.1 / 0.24, 12.7 / 0.29, 0.304, 11.41. (At ``w_pos`` 10
     and 4 substeps, 20 / 200 / 1000 had made no difference: capsule max 35.4 / 38.5 /
     40.1 mm, body max 21.9 / 19.9 / 20.0 mm.)"""
-    collision_clearance_m: float = 0.010
+    collision_clearance_m: float = 0.012
     """Gap the collision term of the iLQR asks for between geoms of different athletes:
     it penalises (clearance − distance)², so near-misses cost a little too and a limb
     heading into the other athlete is turned before it touches. ``cornerman bench
-    physics`` bouts 0-3 (multi, one fixed fit each, ``w_collision`` 1000), body overlap
-    max / mean mm, capsule max / mean mm, skating mm/frame, MPJPE mm: 0 -> 9.7 / 0.24,
-    11.7 / 0.29, 0.316, 11.42; 5 mm -> 8.4 / 0.17, 11.0 / 0.33, 0.312, 11.45; 8 mm ->
-    7.8 / 0.13, 11.3 / 0.23, 0.319, 11.39; 10 mm -> 3.5 / 0.06, 11.2 / 0.32, 0.314,
-    11.51 (per bout, deepest body overlap 0 / 0 / 10.3 / 3.6 against 10.8 / 0.2 / 11.6 /
-    16.1 at 0; what is left is foot in foot)."""
+    physics`` bouts 0-3 (multi, ``w_collision`` 1000), per bout deepest body overlap mm,
+    then the means of skating mm/frame and MPJPE mm. On fits of 150 iterations: 0 ->
+    10.8 / 0.2 / 11.6 / 16.1, 0.316, 11.42; 5 mm -> 3.3 / 0.0 / 11.6 / 18.6, 0.312, 11.45;
+    8 mm -> 0 / 0 / 18.4 / 13.0, 0.319, 11.39; 10 mm -> 0 / 0 / 10.3 / 3.6, 0.314, 11.51.
+    On the fits of 180 (``FitConfig.pose_iters``; kinematic 29.1 / 24.3 / 43.8 / 48.0,
+    1.19, 10.35): 10 mm -> 10.6 / 0 / 5.7 / 15.3, 0.325, 11.33; 12 mm -> 0 / 0 / 4.0 /
+    5.1, 0.335, 11.30; 15 mm -> 2.4 / 0 / 0.5 / 4.2, 0.350, 11.38; 20 mm -> 0 / 0 / 5.3 /
+    12.9, 0.360, 11.48 (and a capsule overlap of 41 mm on bout 3). The deepest overlap is
+    one frame's and moves by several mm with small changes of the input; what is left is
+    mostly foot in foot."""
     w_residual: float = 10.0
     """Squared change (m²) of the residual root servos' targets that the iLQR makes
     (``CostWeights.w_residual``): 1 cm costs 0.001, a 4 cm overlap 0.03 at ``w_collision``.
