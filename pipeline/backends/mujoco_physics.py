@@ -165,7 +165,7 @@ def optimise_bout(
     F = ref.qpos.shape[0]
     # The collision term sees every pair of the athletes' geoms, also the arm-arm pairs
     # the simulation leaves out: the optimiser keeps arms apart softly, through the cost.
-    cost = TrackingCost(m, lay, ref, cfg.weights, probe=scene.probe_model() if scene.probe_mjcf not in ("", scene.mjcf) else None)
+    cost = TrackingCost(m, lay, ref, cfg.weights, probe=scene.collision_probe())
     sol = BoutSolution(
         qpos=np.zeros((F, m.nq)), qvel=np.zeros((F, m.nv)), ctrl=np.zeros((F, m.nu)), actuator_force=np.zeros((F, m.nu)),
         root_wrench=np.zeros((F, len(lay.persons), 6)),

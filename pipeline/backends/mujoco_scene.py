@@ -37,6 +37,11 @@ class Scene:
         """The model of ``probe_mjcf`` (same layout as ``model``)."""
         return self.model if self.probe_mjcf == self.mjcf else load_model(self.probe_mjcf)
 
+    def collision_probe(self) -> mujoco.MjModel | None:
+        """The probe for the iLQR's collision term (``TrackingCost(probe=...)``): its
+        model when it collides more pairs than ``model``, else None (``model``'s own)."""
+        return self.probe_model() if self.probe_mjcf not in ("", self.mjcf) else None
+
 
 def build_scene(skeletons: list[Skeleton], person_ids: list[int], fps: float, joint_names: tuple[str, ...], cfg: HumanoidConfig) -> Scene:
     """Compile the scene and map ``joint_names`` to sites of every person."""

@@ -53,9 +53,8 @@ def _cost(scene: object, q: np.ndarray, clearance_m: float) -> TrackingCost:
         ctrl=np.zeros((F, m.nu)),
     )
     # As ``optimise_bout`` does: the collision term reads every pair of the athletes' geoms.
-    probe = scene.probe_model() if scene.probe_mjcf not in ("", scene.mjcf) else None  # type: ignore[attr-defined]
     weights = CostWeights(w_collision=W_COLLISION, collision_clearance_m=clearance_m)
-    return TrackingCost(m, lay, ref, weights, probe=probe)
+    return TrackingCost(m, lay, ref, weights, probe=scene.collision_probe())  # type: ignore[attr-defined]
 
 
 def test_clearance_prices_a_near_miss_and_leaves_the_simulation_alone() -> None:
