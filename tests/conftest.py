@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +20,7 @@ from pipeline.schema import (
     Tracks2D,
     save_npz,
 )
+from pipeline.shared import describe_lookup, shared_data_dir, shared_models_dir
 
 
 def make_rig(
@@ -144,26 +144,17 @@ def tiny_session(tmp_path: Path) -> Path:
     return write_tiny_session(tmp_path / "tiny")
 
 
-def shared_dir(var: str, default_rel: str) -> Path | None:
-    """Path from env var ``var`` (CI sets it); None when unset or absent."""
-    val = os.environ.get(var)
-    if not val:
-        return None
-    p = Path(val)
-    return p if p.exists() else None
-
-
 @pytest.fixture
 def models_dir() -> Path:
-    p = shared_dir("CORNERMAN_MODELS_DIR", "models")
+    p = shared_models_dir()
     if p is None:
-        pytest.skip("shared ONNX models not available: set CORNERMAN_MODELS_DIR to ../shared/models")
+        pytest.skip(f"shared ONNX models not available ({describe_lookup()})")
     return p
 
 
 @pytest.fixture
 def test_data_dir() -> Path:
-    p = shared_dir("CORNERMAN_TEST_DATA_DIR", "data")
+    p = shared_data_dir()
     if p is None:
-        pytest.skip("shared test data not available: set CORNERMAN_TEST_DATA_DIR to ../shared/data")
+        pytest.skip(f"shared test data not available ({describe_lookup()})")
     return p

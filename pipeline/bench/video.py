@@ -8,7 +8,6 @@ Needs ``CORNERMAN_MODELS_DIR`` (or models in the cache) and
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -26,12 +25,13 @@ COMBOS: tuple[tuple[str, str], ...] = (
 
 
 def _data_dir(data_dir: str | None) -> Path:
-    root = data_dir or os.environ.get("CORNERMAN_TEST_DATA_DIR")
-    if not root or not (Path(root) / "pose2sim_multiperson").is_dir():
-        raise ValueError(
-            f"pose2sim_multiperson data not found under {root!r}: set CORNERMAN_TEST_DATA_DIR or pass data_dir="
-        )
-    return Path(root) / "pose2sim_multiperson"
+    if data_dir:
+        if not (Path(data_dir) / "pose2sim_multiperson").is_dir():
+            raise ValueError(f"pose2sim_multiperson data not found under {data_dir!r}")
+        return Path(data_dir) / "pose2sim_multiperson"
+    from pipeline.shared import dataset_dir
+
+    return dataset_dir("pose2sim_multiperson")
 
 
 def _speed_rows(data: Path, frames: int, num_threads: int, models_dir: str | None) -> list[dict[str, Any]]:
@@ -92,7 +92,7 @@ def _e2e_row(data: Path, num_threads: int, models_dir: str | None) -> dict[str, 
     dets = run_videos({n: data / "videos" / f"{n}.mp4" for n in rig.names}, rig, None, cfg)
     t1 = time.perf_counter()
     tracks = run_tracker(dets, rig)
-    assoc = associate.run(tracks, rig, AssociateConfig(), [])
+    assoc = associate.run(tracks, rig, AssociateConfig(n_persons=2), [])
     raw, filt = triangulate.run(tracks, assoc, rig, TriangulateConfig())
     t2 = time.perf_counter()
     err = reprojection_error(raw, tracks, assoc, rig)

@@ -1,7 +1,8 @@
 """Finding and downloading registry models.
 
 Lookup order of ``resolve_model``: the explicit ``models_dir`` (CLI ``--models-dir``),
-then ``$CORNERMAN_MODELS_DIR`` (offline folder), then the cache
+then the shared models folder (``$CORNERMAN_MODELS_DIR``, else ``../shared/models``:
+``pipeline.shared``), then the cache
 ``$CORNERMAN_CACHE_DIR/models`` (default ``~/.cache/cornerman/models``).
 
 Downloads go to ``<file>.part`` and resume with an HTTP ``Range`` request when a partial
@@ -26,6 +27,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from pipeline.registry.models import ALIASES, UNKNOWN_SHA256, ModelInfo, get_model
+from pipeline.shared import shared_models_dir
 
 log = logging.getLogger(__name__)
 
@@ -45,9 +47,9 @@ def search_dirs(models_dir: Path | str | None = None) -> list[Path]:
     dirs: list[Path] = []
     if models_dir is not None:
         dirs.append(Path(models_dir).expanduser())
-    env = os.environ.get("CORNERMAN_MODELS_DIR")
-    if env:
-        dirs.append(Path(env).expanduser())
+    shared = shared_models_dir()
+    if shared is not None:
+        dirs.append(shared)
     dirs.append(cache_dir())
     out: list[Path] = []
     for d in dirs:
