@@ -181,7 +181,7 @@ def run_bench(
         no_filter = TriangulateConfig(filter=FilterConfig(enabled=False))
         for _ in range(max(1, int(repeats))):
             c0, t0 = time.process_time(), time.perf_counter()
-            assoc = run_associate(tracks, rig, AssociateConfig())
+            assoc = run_associate(tracks, rig, AssociateConfig(n_persons=2))
             t1 = time.perf_counter()
             raw, filtered = run_triangulate(tracks, assoc, rig, TriangulateConfig())
             t2, c2 = time.perf_counter(), time.process_time()

@@ -30,11 +30,11 @@ from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
 from pipeline.stages.association.config import AssociateConfig
 from pipeline.stages.association.edits import apply_identity_edits
-from pipeline.stages.association.identities import rig_focus_m, select_athletes, stitch_fragments
+from pipeline.stages.association.identities import select_athletes, stitch_fragments
 from pipeline.stages.association.prep import prepare
 from pipeline.stages.association.tracker import track_fragments
 
-__all__ = ["AssociateConfig", "run"]
+__all__ = ["AssociateConfig", "person_count", "run"]
 
 
 def run(
@@ -44,36 +44,58 @@ def run(
     edits: Sequence[Annotation] = (),
     person_names: tuple[str, ...] = (),
 ) -> Association:
-    """Associate detections across views into ``cfg.n_persons`` athletes.
+    """Associate detections across views into persons (how many: ``cfg.n_persons``).
 
     Args:
         tracks: per-view tracked 2D detections (``tracks.n_views == rig.n_views``).
         rig: the calibration.
         cfg: stage config.
         edits: identity edits (``AssignIdentity``, ``SwapIdentities``), applied in order.
-        person_names: display names by person id (missing names are "").
+        person_names: display names by person id (missing names are ""); with
+            ``n_persons="athletes"`` their number is the number of persons.
     Returns:
-        ``Association`` with ``person_ids = 0..n_persons-1`` (plus any id an edit uses).
+        ``Association`` with ``person_ids = 0..n-1`` (plus any id an edit uses).
     Raises:
-        ValueError: rig/tracks mismatch, bad config, or an edit naming an unknown camera.
+        ValueError: rig/tracks mismatch, bad config, no athlete names in "athletes" mode,
+        or an edit naming an unknown camera.
     """
-    if cfg.n_persons < 0:
-        raise ValueError(f"AssociateConfig.n_persons must be >= 0, got {cfg.n_persons}")
+    n_wanted = person_count(cfg, person_names)
+    if rig.n_views < 2:
+        raise ValueError(
+            f"associate: the calibration has {rig.n_views} camera ({', '.join(rig.names)}); matching persons "
+            "across views needs at least 2"
+        )
     prep = prepare(tracks, rig, cfg.min_keypoint_conf)
     frags = track_fragments(prep, rig, tracks.n_frames, cfg)
     ident = stitch_fragments(frags, prep.tracklet, rig.fps, cfg)
-    focus = rig_focus_m(rig.centers_world_m, rig.T_world_cam[:, :3, 2])
-    athlete = select_athletes(frags, ident, cfg.n_persons, cfg.min_support_frames, focus, cfg.support_tolerance)
+    choice = select_athletes(frags, ident, n_wanted, rig, tracks.n_frames, cfg)
     lab = frags.label
-    pod = np.where(lab >= 0, athlete[np.maximum(lab, 0)], -1)
+    pod = np.where(lab >= 0, choice.athlete[np.maximum(lab, 0)], -1)
     conf = _confidence(frags.cost, frags.cost_other, lab >= 0, cfg.gate)
-    ids = set(range(cfg.n_persons))
+    ids = set(range(n_wanted if n_wanted is not None else choice.n_persons))
     if edits:
         pod, conf, used = apply_identity_edits(tracks, rig.names, pod, conf, edits)
         ids |= used
     person_ids = np.array(sorted(ids), np.int64)
     names = tuple(person_names[i] if i < len(person_names) else "" for i in person_ids)
     return Association(person_ids=person_ids, person_names=names, person_of_det=pod, confidence=conf)
+
+
+def person_count(cfg: AssociateConfig, person_names: Sequence[str]) -> int | None:
+    """The number of persons ``cfg.n_persons`` asks for; ``None`` in "auto" mode.
+
+    Raises ``ValueError`` in "athletes" mode when no names are given."""
+    if cfg.n_persons == "auto":
+        return None
+    if cfg.n_persons == "athletes":
+        if not person_names:
+            raise ValueError(
+                'associate: n_persons is "athletes" but the session lists no athletes; add names to '
+                'session.json "athletes" (or `cornerman new --athlete NAME`), or set '
+                'stage_config.associate.n_persons to a number or "auto"'
+            )
+        return len(person_names)
+    return int(cfg.n_persons)
 
 
 def _confidence(cost: np.ndarray, cost_other: np.ndarray, assigned: np.ndarray, gate: float) -> np.ndarray:

@@ -68,8 +68,9 @@ def _pose(root: np.ndarray, heading: float, t: float, phase: float) -> np.ndarra
     return J @ R.T + root
 
 
-def make_motion(n_frames: int, fps: float, referee: bool) -> np.ndarray:
-    """(frames, persons, 17, 3) world joints: two boxers circling each other (+ referee)."""
+def make_motion(n_frames: int, fps: float, referee: bool, referee_radius_m: float = 2.4) -> np.ndarray:
+    """(frames, persons, 17, 3) world joints: two boxers circling each other (+ a referee
+    walking a circle of ``referee_radius_m`` around the ring centre)."""
     n_p = 3 if referee else 2
     out = np.zeros((n_frames, n_p, 17, 3))
     for f in range(n_frames):
@@ -82,7 +83,8 @@ def make_motion(n_frames: int, fps: float, referee: bool) -> np.ndarray:
             heading = np.arctan2(-sgn * d[1], -sgn * d[0])
             out[f, p] = _pose(root, heading, t, phase=1.3 * p)
         if referee:
-            root = np.array([2.4 * np.cos(0.1 * t + 2.0), 2.4 * np.sin(0.1 * t + 2.0), 0.0])
+            a = 0.1 * t + 2.0
+            root = np.array([referee_radius_m * np.cos(a), referee_radius_m * np.sin(a), 0.0])
             out[f, 2] = _pose(root, np.arctan2(-root[1], -root[0]), t, phase=0.5)
     return out
 
@@ -117,6 +119,7 @@ def make_scene(
     miss_det: float = 0.0,
     miss_joint: float = 0.02,
     referee: bool = False,
+    referee_radius_m: float = 2.4,
     swaps: tuple[tuple[int, int], ...] = (),
     empty_views: tuple[int, ...] = (),
     seed: int = 0,
@@ -125,11 +128,12 @@ def make_scene(
     """Project the motion into a ring rig and build flat ``Tracks2D`` rows.
 
     ``swaps``: (view, frame) pairs where the per-view track ids of the two boxers swap
-    from that frame on. ``empty_views``: cameras that see nobody.
+    from that frame on. ``empty_views``: cameras that see nobody. ``referee_radius_m``
+    beyond the ring of cameras (6 m) puts the referee outside the capture volume.
     """
     rng = np.random.default_rng(seed)
     rig = make_rig(n_views, fps=fps)
-    X = make_motion(n_frames, fps, referee)
+    X = make_motion(n_frames, fps, referee, referee_radius_m)
     uv, depth = project(rig, X)  # (views, frames, persons, joints, 2)
     rows: dict[str, list] = {k: [] for k in ("view", "frame", "bbox", "score", "kp", "conf", "valid", "tid", "gt")}
     n_p = X.shape[1]

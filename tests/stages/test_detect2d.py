@@ -101,7 +101,7 @@ def test_pose2sim_short_end_to_end(models_dir: Path, test_data_dir: Path) -> Non
     cfg = Detect2DConfig(models_dir=str(models_dir), max_frames=F, num_threads=1)
     dets = run_videos({n: data / "videos" / f"{n}.mp4" for n in rig.names}, rig, None, cfg)
     tracks = run_tracker(dets, rig)
-    assoc = associate.run(tracks, rig, AssociateConfig(), [])
+    assoc = associate.run(tracks, rig, AssociateConfig(n_persons=2), [])
     raw, _ = triangulate.run(tracks, assoc, rig, TriangulateConfig())
     assert raw.n_persons == 2
     for v in range(rig.n_views):

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
 
 
 @dataclass(frozen=True)
@@ -14,8 +17,19 @@ class AssociateConfig:
     camera distance.
     """
 
-    n_persons: int = 2
-    """Number of athletes to keep (ids ``0 .. n_persons-1``); every other identity is ``-1``."""
+    n_persons: int | Literal["athletes", "auto"] = "athletes"
+    """How many persons to keep (ids ``0 .. n-1``; every other identity is ``-1``): a number
+    (>= 1); ``"athletes"``, one per name of the session's ``athletes`` list; or ``"auto"``,
+    every identity seen in >= 2 views for ``auto_min_support_s`` inside the capture volume."""
+    auto_min_support_s: float = 2.0
+    """``"auto"``: an identity counts when seen in >= 2 views for this long (s, > 0), capped
+    at ``auto_min_support_frac`` of the bout so that a short clip keeps its persons."""
+    auto_min_support_frac: float = 0.3
+    """``"auto"``: cap of ``auto_min_support_s`` as a fraction of the bout's duration, in (0, 1]."""
+    bystander_view_frac: float = 0.6
+    """An identity whose mean position lies in the field of view of fewer than this fraction
+    of the cameras is a bystander (standing outside the capture volume), in [0, 1]; such
+    identities are never chosen in ``"auto"`` mode and rank last in the other modes."""
     min_keypoint_conf: float = 0.2
     """Joints below this 2D confidence are ignored for association."""
     gate: float = 0.25
@@ -52,3 +66,14 @@ class AssociateConfig:
     support_tolerance: float = 0.2
     """Identities within this relative margin of the best multi-view support are ranked by
     how close they stay to where the cameras look (the ring centre) instead."""
+
+    def __post_init__(self) -> None:
+        n = self.n_persons
+        if isinstance(n, bool) or not (isinstance(n, int) and n >= 1 or n in ("athletes", "auto")):
+            raise ValueError(f'AssociateConfig.n_persons must be an integer >= 1, "athletes" or "auto", got {n!r}')
+        for name, lo, hi in (("auto_min_support_s", 0.0, np.inf), ("auto_min_support_frac", 0.0, 1.0)):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and lo < v <= hi):
+                raise ValueError(f"AssociateConfig.{name} must be in ({lo}, {hi}], got {v!r}")
+        if not 0.0 <= self.bystander_view_frac <= 1.0:
+            raise ValueError(f"AssociateConfig.bystander_view_frac must be in [0, 1], got {self.bystander_view_frac!r}")

@@ -3,15 +3,20 @@
 A fragment ends when a person is lost by every camera for longer than
 ``max_missing_s``; when the person comes back a new fragment starts. Fragments are
 stitched when the later one starts where the earlier one could have walked to in the
-gap, or when they share a per-view track. The ``n_persons`` identities with the most
-multi-view support over the whole sequence are the athletes; every other identity (a
-referee, a bystander, a ghost from a wrong pairing) is "nobody" (``-1``).
+gap, or when they share a per-view track. The identities with the most multi-view
+support over the whole sequence are the persons (as many as the session asks for, or in
+"auto" mode all that are seen long enough inside the capture volume); every other
+identity (a referee, a bystander, a ghost from a wrong pairing) is "nobody" (``-1``).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from pipeline.geometry.projection import project
+from pipeline.schema.camera import CameraRig
 from pipeline.stages.association.config import AssociateConfig
 from pipeline.stages.association.tracker import Fragments
 
@@ -66,25 +71,55 @@ def rig_focus_m(centers_m: np.ndarray, axes: np.ndarray) -> np.ndarray:
     return np.linalg.solve(A, b)
 
 
+def in_view_fraction(rig: CameraRig, points_m: np.ndarray) -> np.ndarray:
+    """(n,) fraction of the rig's cameras in whose image each world point (n, 3) lands
+    (in front of the camera, inside the image), in [0, 1]."""
+    if points_m.shape[0] == 0:
+        return np.zeros(0)
+    uv, depth = project(rig, points_m, distort=False)
+    wh = rig.image_size_wh[:, None, :].astype(np.float64)
+    inside = (depth > 0) & np.all((uv >= 0) & (uv <= wh), axis=-1)
+    return inside.mean(axis=0)
+
+
+@dataclass(frozen=True)
+class IdentityChoice:
+    """Which stitched identities are persons.
+
+    Fields:
+        athlete: (frags,) person id ``0..n-1`` of each fragment, or -1.
+        n_persons: number of persons chosen.
+        bystanders: identities with enough support but outside the capture volume.
+    """
+
+    athlete: np.ndarray
+    n_persons: int
+    bystanders: int
+
+
 def select_athletes(
     frags: Fragments,
     ident: np.ndarray,
-    n_persons: int,
-    min_support_frames: int,
-    focus_m: np.ndarray,
-    support_tolerance: float,
-) -> np.ndarray:
-    """(frags,) athlete id ``0..n_persons-1`` of each fragment, or -1.
+    n_persons: int | None,
+    rig: CameraRig,
+    n_frames: int,
+    cfg: AssociateConfig,
+) -> IdentityChoice:
+    """Choose the persons among the stitched identities.
 
-    Support = frames seen in >= 2 views, summed over an identity's fragments. Identities
-    within ``support_tolerance`` (relative) of the best support are ranked by their mean
-    horizontal distance to the rig's focus point (athletes are what the cameras frame; a
-    referee circles around them); the rest by support. Athletes are then numbered by
-    first appearance (ties: larger support first).
+    Support = frames seen in >= 2 views, summed over an identity's fragments. An identity
+    whose mean position is in the field of view of fewer than ``cfg.bystander_view_frac``
+    of the cameras is a bystander. With ``n_persons`` given, the ``n_persons`` best
+    identities are chosen: bystanders last, then by support, and identities within
+    ``support_tolerance`` (relative) of the best support by their mean horizontal distance
+    to where the cameras look (athletes are what the cameras frame; a referee circles
+    around them). With ``n_persons=None`` ("auto"), every non-bystander identity with
+    support >= ``min(auto_min_support_s, auto_min_support_frac x bout)`` is chosen.
+    Persons are numbered by first appearance (ties: larger support first).
     """
     out = np.full(frags.n_fragments, -1, np.int64)
     if frags.n_fragments == 0:
-        return out
+        return IdentityChoice(out, 0, 0)
     roots = np.unique(ident)
     support = np.array([frags.multiview_frames[ident == r].sum() for r in roots])
     first = np.array([frags.first_frame[ident == r].min() for r in roots])
@@ -95,11 +130,20 @@ def select_athletes(
             for r in roots
         ]
     )
-    dist = np.linalg.norm((mean_c - focus_m)[:, :2], axis=1)
-    top_tier = support >= (1.0 - support_tolerance) * support.max()
-    ranked = np.lexsort((dist, -np.where(top_tier, support.max(), support)))
-    chosen = [int(i) for i in ranked[:n_persons] if support[i] >= min_support_frames]
+    focus = rig_focus_m(rig.centers_world_m, rig.T_world_cam[:, :3, 2])
+    dist = np.linalg.norm((mean_c - focus)[:, :2], axis=1)
+    bystander = in_view_fraction(rig, mean_c) < cfg.bystander_view_frac
+    eligible = support >= cfg.min_support_frames
+    if n_persons is None:
+        need = min(cfg.auto_min_support_s * rig.fps, cfg.auto_min_support_frac * n_frames)
+        chosen = [int(i) for i in np.flatnonzero(eligible & ~bystander & (support >= need))]
+        n_bystanders = int(np.sum(eligible & bystander & (support >= need)))
+    else:
+        top_tier = support >= (1.0 - cfg.support_tolerance) * support.max()
+        ranked = np.lexsort((dist, -np.where(top_tier, support.max(), support), bystander))
+        chosen = [int(i) for i in ranked[:n_persons] if eligible[i]]
+        n_bystanders = int(np.sum(eligible & bystander)) - int(np.sum(bystander[chosen]))
     chosen.sort(key=lambda i: (first[i], -support[i]))
     for pid, i in enumerate(chosen):
         out[ident == roots[i]] = pid
-    return out
+    return IdentityChoice(out, len(chosen), n_bystanders)
