@@ -57,12 +57,21 @@ class Detect2DConfig:
     """BlazePose: re-run tilted people on a crop rotated upright (hips→shoulders)."""
     min_keypoint_conf: float = 0.0
     """Keypoints below this confidence are marked invalid."""
+    pose_nms_dist: float = 0.1
+    """Pose NMS: two detections of one frame whose confident keypoints lie (median) within
+    this fraction of the smaller box's height of each other describe one person (a top-down
+    model given a box that holds two people often returns the other one's pose); the one
+    whose box fits its keypoints worse is dropped. In [0, 1); 0 = off."""
     frame_step: int = 1
     """Process every n-th frame (frame indices keep the video's numbering)."""
     max_frames: int = 0
     """Stop after this many video frames per camera (0 = whole video)."""
     num_threads: int = 0
     """onnxruntime intra-op threads (0 = all cores)."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.pose_nms_dist < 1.0:
+            raise ValueError(f"Detect2DConfig.pose_nms_dist must be in [0, 1), got {self.pose_nms_dist!r}")
 
 
 @dataclass(frozen=True)
@@ -119,8 +128,52 @@ def process_frames(images: list[np.ndarray], models: Models, cfg: Detect2DConfig
     res = []
     for (b, s), (kp, conf, valid) in zip(dets, estimate_many(models.pose, images, [b for b, _ in dets]), strict=True):
         valid = valid & (conf >= cfg.min_keypoint_conf) & np.isfinite(kp).all(axis=2)
-        res.append(FrameResult(b, s, kp, conf, valid))
+        keep = duplicate_pose_keep(b, kp, conf, valid, cfg.pose_nms_dist)
+        res.append(FrameResult(b[keep], s[keep], kp[keep], conf[keep], valid[keep]))
     return res
+
+
+def _box_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """IoU of two xyxy boxes."""
+    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = w * h
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return inter / union if union > 0 else 0.0
+
+
+def duplicate_pose_keep(
+    boxes: np.ndarray, kp: np.ndarray, conf: np.ndarray, valid: np.ndarray, max_dist: float, min_conf: float = 0.3
+) -> np.ndarray:
+    """(n,) bool: the detections of one frame kept by pose NMS (see ``Detect2DConfig.pose_nms_dist``).
+
+    boxes (n, 4) xyxy px, kp (n, J, 2) px, conf / valid (n, J). Two poses sharing at least 5
+    confident keypoints whose median distance is below ``max_dist`` times the smaller box
+    height are one person; of the two, the detection whose box has the lower IoU with the
+    bounding box of its own confident keypoints is dropped.
+    """
+    n = boxes.shape[0]
+    keep = np.ones(n, dtype=bool)
+    if max_dist <= 0 or n < 2:
+        return keep
+    good = valid & (conf >= min_conf)
+    fit = np.zeros(n)
+    for i in range(n):
+        pts = kp[i][good[i]]
+        if pts.shape[0] >= 2:
+            fit[i] = _box_iou(boxes[i], np.r_[pts.min(axis=0), pts.max(axis=0)])
+    height = boxes[:, 3] - boxes[:, 1]
+    for i in range(n):
+        for k in range(i + 1, n):
+            if not (keep[i] and keep[k]):
+                continue
+            both = good[i] & good[k]
+            if both.sum() < 5:
+                continue
+            d = float(np.median(np.linalg.norm(kp[i, both] - kp[k, both], axis=-1)))
+            if d < max_dist * min(height[i], height[k]):
+                keep[k if fit[k] < fit[i] else i] = False
+    return keep
 
 
 def run_videos(

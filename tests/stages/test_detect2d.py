@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pipeline.schema.joints import COCO17_FEET
-from pipeline.stages.detect2d import Detect2DConfig, run_videos
+from pipeline.stages.detect2d import Detect2DConfig, duplicate_pose_keep, run_videos
 from tests.conftest import make_rig
 
 
@@ -140,3 +140,27 @@ def test_runner_video_session(models_dir: Path, test_data_dir: Path, tmp_path: P
     for v in range(4):
         ids = tracks.track_id[(tracks.view == v) & (tracks.track_id >= 0)]
         assert np.unique(ids).size >= 2  # both performers have a track in every view
+
+
+def test_pose_nms_drops_the_box_holding_another_persons_pose() -> None:
+    rng = np.random.default_rng(0)
+    J = 17
+    woman = np.c_[rng.uniform(600, 900, J), rng.uniform(420, 940, J)]
+    man = np.c_[rng.uniform(180, 800, J), rng.uniform(420, 1250, J)]
+    boxes = np.array([[580.0, 400, 920, 960], [160, 400, 990, 1260], [170, 410, 820, 1270]])
+    # Detection 1 is the man's large box, but the model returned the woman's pose in it.
+    kp = np.stack([woman, woman + rng.normal(0, 3, (J, 2)), man])
+    conf = np.full((3, J), 0.9)
+    valid = np.ones((3, J), bool)
+    keep = duplicate_pose_keep(boxes, kp, conf, valid, 0.1)
+    assert keep.tolist() == [True, False, True]
+    # Order does not matter: the box that fits its keypoints wins.
+    keep = duplicate_pose_keep(boxes[[1, 0, 2]], kp[[1, 0, 2]], conf, valid, 0.1)
+    assert keep.tolist() == [False, True, True]
+    # Off, or too few shared confident keypoints: everything is kept.
+    assert duplicate_pose_keep(boxes, kp, conf, valid, 0.0).all()
+    few = conf.copy()
+    few[1, 4:] = 0.1
+    assert duplicate_pose_keep(boxes, kp, few, valid, 0.1).all()
+    with pytest.raises(ValueError, match="pose_nms_dist"):
+        Detect2DConfig(pose_nms_dist=1.5)
