@@ -27,6 +27,8 @@ BENCHES = {
     "fit": "pipeline.bench.fit",
     "physics": "pipeline.bench.physics",
     "video": "pipeline.bench.video",
+    "shelf": "pipeline.bench.shelf",
+    "footage": "pipeline.bench.footage",
     "server": "server.loadtest",
 }
 
@@ -170,23 +172,61 @@ def export(
     format: Annotated[str, typer.Option("--format", "-f", help="json or npz.")] = "json",
     source: Annotated[str, typer.Option(help="best (fit, else filtered), latest (physics, else fit, else filtered), raw, filtered, fit or physics.")] = "best",
     out: Annotated[Path | None, typer.Option("--out", "-o", help="Output file.")] = None,
+    calibration: Annotated[
+        bool,
+        typer.Option(
+            "--calibration",
+            help="Export the camera calibration the later stages used (refined by the calibrate stage when "
+            "it was adopted) as a Pose2Sim/anipose TOML, instead of keypoints.",
+        ),
+    ] = False,
 ) -> None:
-    """Export 3D keypoints (JSON as documented in the README, or NPZ)."""
-    from pipeline.io.export import find_keypoints3d, write_export
+    """Export 3D keypoints (JSON as documented in the README, or NPZ), or with --calibration the calibration (TOML)."""
     from pipeline.schema import SessionConfig
 
     try:
+        cfg = SessionConfig.load(session)
+        if calibration:
+            path = out or (session / "calibration_refined.toml")
+            _check_out(path)
+            _export_calibration(session, cfg, path)
+            return
+        from pipeline.io.export import find_keypoints3d, write_export
+
         if format not in ("json", "npz"):
             raise ValueError(f"--format must be json or npz, got {format!r}")
-        cfg = SessionConfig.load(session)
         kp, chosen = find_keypoints3d(session, source)
         names = {i: n for i, n in enumerate(cfg.athletes)}
         path = out or (session / f"keypoints3d_{chosen}.{format}")
+        _check_out(path)
         write_export(kp, format, path, names)  # type: ignore[arg-type]
     except (ValueError, LookupError) as e:
         _fail(str(e))
         return
     console.print(f"wrote {path} ({chosen}, {kp.n_frames} frames, {kp.n_persons} persons)")
+
+
+def _check_out(path: Path) -> None:
+    """``ValueError`` for an output path that cannot be written (a folder, or a missing folder)."""
+    if path.is_dir():
+        raise ValueError(f"--out {path}: is a folder; give a file name")
+    if not path.parent.is_dir():
+        raise ValueError(f"--out {path}: folder {path.parent} does not exist")
+
+
+def _export_calibration(session: Path, cfg: Any, path: Path) -> None:
+    from pipeline.artifacts import ArtifactStore
+    from pipeline.io.calibration import save_toml
+    from pipeline.runner.rig import CALIBRATE, rig_for
+
+    rig = rig_for("downstream", session, cfg)
+    m = ArtifactStore(session).manifest(CALIBRATE)
+    save_toml(rig, path)
+    if m is None:
+        how = "the calibrate stage has not run: this is the input calibration"
+    else:
+        how = str(m.metrics.get("reason", "calibrate stage result"))
+    console.print(f"wrote {path} ({len(rig.names)} cameras; {how})", soft_wrap=True)
 
 
 @app.command()

@@ -7,7 +7,16 @@ from functools import cache
 
 from pipeline.runner.spec import StageSpec
 
-STAGE_ORDER: tuple[str, ...] = ("detect2d", "track", "associate", "triangulate", "fit", "physics", "evaluate")
+STAGE_ORDER: tuple[str, ...] = (
+    "detect2d",
+    "track",
+    "associate",
+    "calibrate",
+    "triangulate",
+    "fit",
+    "physics",
+    "evaluate",
+)
 
 
 @cache

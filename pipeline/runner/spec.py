@@ -62,11 +62,19 @@ class StageContext:
         return p if p.is_absolute() else self.session_dir / p
 
     @cached_property
-    def rig(self) -> CameraRig:
-        """The session's calibration at the session's frame rate (``pipeline.io.session_rig``)."""
+    def input_rig(self) -> CameraRig:
+        """The session's calibration file at the session's frame rate (``pipeline.io.session_rig``)."""
         from pipeline.io.session_rig import session_rig
 
         return session_rig(self.session_dir, self.session)
+
+    @cached_property
+    def rig(self) -> CameraRig:
+        """The rig this stage works with: after ``calibrate``, the one it chose
+        (``pipeline.runner.rig``); before, the input calibration."""
+        from pipeline.runner.rig import rig_for
+
+        return rig_for(self.stage, self.session_dir, self.session, self.input_rig)
 
     @cached_property
     def all_annotations(self) -> list[Annotation]:

@@ -56,3 +56,22 @@ def test_bench_writes_its_rows_as_json(tmp_path: Path) -> None:
     assert r.exit_code == 2 and "does not exist" in r.output
     r = runner.invoke(app, ["bench", "triangulation", *opts, "--json", str(tmp_path)])
     assert r.exit_code == 2 and "is a folder" in r.output
+
+
+def test_export_calibration_and_bad_out_paths(tmp_path: Path) -> None:
+    from pipeline.io.calibration import load_calibration
+
+    s = write_tiny_session(tmp_path / "s", stages=("detect2d", "track", "associate", "calibrate", "triangulate"))
+    assert runner.invoke(app, ["run", str(s)]).exit_code == 0
+    out = tmp_path / "calib.toml"
+    r = runner.invoke(app, ["export", str(s), "--calibration", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "wrote" in r.output and ("adopted" in r.output or "not" in r.output)
+    rig = load_calibration(out)
+    assert rig.names == load_calibration(s / "inputs" / "calibration.toml").names
+    for bad, why in ((tmp_path / "missing" / "c.toml", "does not exist"), (tmp_path, "is a folder")):
+        r = runner.invoke(app, ["export", str(s), "--calibration", "--out", str(bad)])
+        assert r.exit_code == 2 and why in r.output
+        r = runner.invoke(app, ["export", str(s), "--out", str(bad)])
+        assert r.exit_code == 2 and why in r.output
+    assert not list(tmp_path.glob("*.tmp")) and not (tmp_path / "missing").exists()

@@ -15,7 +15,7 @@ from typing import Any, Literal
 import numpy as np
 
 from pipeline.artifacts import ArtifactStore
-from pipeline.io.session_rig import session_rig
+from pipeline.runner.rig import rig_for
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
@@ -145,7 +145,7 @@ def load_session_data(session_dir: str | Path) -> SessionData:
     """Load every artifact the viewer can show; ``ValueError`` if the session itself is unreadable."""
     session_dir = Path(session_dir)
     config = SessionConfig.load(session_dir)
-    rig = session_rig(session_dir, config)
+    rig = rig_for("downstream", session_dir, config)  # the refined rig when calibrate adopted one
     store = ArtifactStore(session_dir)
     tracks = _load_opt(store, "track", "tracks", Tracks2D)
     association = _load_opt(store, "associate", "association", Association)

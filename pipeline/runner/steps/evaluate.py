@@ -67,7 +67,7 @@ def _execute(ctx: StageContext, cfg: EvaluateConfig) -> dict[str, Any]:
 SPEC = StageSpec(
     name="evaluate",
     deps=("track", "associate", "triangulate"),
-    optional_deps=("fit", "physics"),
+    optional_deps=("calibrate", "fit", "physics"),
     config_cls=EvaluateConfig,
     execute=_execute,
     input_files=_input_files,

@@ -30,6 +30,7 @@ def _execute(ctx: StageContext, cfg: FitConfig) -> dict[str, Any]:
 SPEC = StageSpec(
     name="fit",
     deps=("triangulate", "associate", "track"),
+    optional_deps=("calibrate",),
     config_cls=FitConfig,
     execute=_execute,
     description="kinematic body-model fit (anny shape + per-frame pose, L-BFGS on 2D/3D keypoints)",

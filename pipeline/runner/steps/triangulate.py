@@ -22,6 +22,7 @@ def _execute(ctx: StageContext, cfg: TriangulateConfig) -> dict[str, Any]:
 SPEC = StageSpec(
     name="triangulate",
     deps=("associate", "track"),
+    optional_deps=("calibrate",),
     config_cls=TriangulateConfig,
     execute=_execute,
     uses_rig_fps=True,

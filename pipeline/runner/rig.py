@@ -1,0 +1,43 @@
+"""Which camera rig a stage sees: the input calibration, or the one ``calibrate`` chose.
+
+``detect2d``, ``track``, ``associate`` and ``calibrate`` itself work with the session's
+input calibration (``pipeline.io.session_rig``). Every later stage, the viewer and the
+exports use the rig the ``calibrate`` stage stored (the refined rig when it was adopted,
+the input rig otherwise), as long as that stage is enabled and has run. One rule, here.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pipeline.artifacts import ArtifactStore
+from pipeline.io.session_rig import session_rig
+from pipeline.runner.registry import STAGE_ORDER
+from pipeline.schema.camera import CameraRig
+from pipeline.schema.session import SessionConfig
+
+CALIBRATE = "calibrate"
+RIG_ARTIFACT = "rig"
+"""The ``calibrate`` stage's output holding the rig for the later stages (``rig.npz``)."""
+
+
+def uses_calibrated_rig(stage: str, session: SessionConfig) -> bool:
+    """Whether ``stage`` (or, for ``"downstream"``, the viewer and exports) reads the rig
+    ``calibrate`` chose: the stage comes after it and ``calibrate`` is enabled."""
+    enabled = session.stages or STAGE_ORDER
+    if CALIBRATE not in enabled:
+        return False
+    return stage == "downstream" or (stage in STAGE_ORDER and STAGE_ORDER.index(stage) > STAGE_ORDER.index(CALIBRATE))
+
+
+def rig_for(stage: str, session_dir: Path, session: SessionConfig, input_rig: CameraRig | None = None) -> CameraRig:
+    """The rig ``stage`` works with (``"downstream"``: the viewer's and the exports').
+
+    Falls back to the input calibration while ``calibrate`` has not run."""
+    base = input_rig if input_rig is not None else session_rig(session_dir, session)
+    if not uses_calibrated_rig(stage, session):
+        return base
+    store = ArtifactStore(session_dir)
+    if not store.has(CALIBRATE, f"{RIG_ARTIFACT}.npz"):
+        return base
+    return store.load(CALIBRATE, RIG_ARTIFACT, CameraRig)

@@ -1,0 +1,70 @@
+"""calibrate step: refine the camera rig on the associated keypoints (bundle adjustment).
+
+Stores the rig every later stage uses (``rig.npz``: the refined rig when adopted, the input
+rig otherwise; ``pipeline.runner.rig``) and ``report.json`` with the decision and the
+per-camera reprojection before and after.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.runner.rig import RIG_ARTIFACT
+from pipeline.runner.spec import StageContext, StageSpec
+from pipeline.schema.association import Association
+from pipeline.schema.detections import Tracks2D
+from pipeline.stages.calibrate import CalibrateConfig, CalibrationResult, summary
+from pipeline.stages.calibrate import run as run_calibrate
+
+
+def _input_files(ctx: StageContext) -> list[Path]:
+    return [ctx.resolve(ctx.session.calibration)]
+
+
+def report(result: CalibrationResult) -> dict[str, Any]:
+    """JSON-ready report: the decision, then per camera the reprojection (undistorted px,
+    median and p95 over every associated keypoint) before and after, and the change."""
+
+    def num(x: float) -> float | None:
+        return round(float(x), 3) if np.isfinite(x) else None
+
+    cams = []
+    for v, name in enumerate(result.rig.names):
+        row: dict[str, Any] = {
+            "camera": name,
+            "center_shift_mm": num(1000.0 * result.center_shift_m[v]),
+            "rotation_change_deg": num(result.rotation_change_deg[v]),
+            "focal_scale": num(result.focal_scale[v]),
+        }
+        for label, st in (("before", result.before), ("after", result.after)):
+            if st is not None:
+                row[f"median_{label}_px"] = num(st.median_px[v])
+                row[f"p95_{label}_px"] = num(st.p95_px[v])
+                row[f"n_obs_{label}"] = int(st.n_obs[v])
+        cams.append(row)
+    return {**summary(result), "cameras": cams}
+
+
+def _execute(ctx: StageContext, cfg: CalibrateConfig) -> dict[str, Any]:
+    tracks = ctx.load("track", "tracks", Tracks2D)
+    assoc = ctx.load("associate", "association", Association)
+    ctx.progress(0, 1, "bundle adjustment on the athletes' keypoints")
+    result = run_calibrate(tracks, assoc, ctx.input_rig, cfg)
+    ctx.progress(1, 1, "adopted" if result.adopted else "input calibration kept")
+    ctx.metrics.update({k: v for k, v in summary(result).items() if v is not None})
+    return {RIG_ARTIFACT: result.rig, "report.json": json.dumps(report(result), indent=2)}
+
+
+SPEC = StageSpec(
+    name="calibrate",
+    deps=("track", "associate"),
+    config_cls=CalibrateConfig,
+    execute=_execute,
+    input_files=_input_files,
+    uses_rig_fps=True,
+    description="calibration refinement from the athletes (bundle adjustment; kept only when it helps)",
+)
