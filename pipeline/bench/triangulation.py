@@ -165,6 +165,7 @@ def run_bench(
     from pipeline.stages.associate import AssociateConfig
     from pipeline.stages.associate import run as run_associate
     from pipeline.stages.filtering import FilterConfig
+    from pipeline.stages.joint_fill import FillConfig
     from pipeline.stages.triangulate import TriangulateConfig
     from pipeline.stages.triangulate import run as run_triangulate
 
@@ -178,7 +179,7 @@ def run_bench(
         tracks, rig = bout.tracks, bout.rig
         F = tracks.n_frames
         best_a = best_t = best_d = best_cpu = np.inf
-        no_filter = TriangulateConfig(filter=FilterConfig(enabled=False))
+        no_filter = TriangulateConfig(filter=FilterConfig(enabled=False), fill=FillConfig(enabled=False))
         for _ in range(max(1, int(repeats))):
             c0, t0 = time.process_time(), time.perf_counter()
             assoc = run_associate(tracks, rig, AssociateConfig(n_persons=2))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -30,6 +30,9 @@ class Keypoints3D:
         reproj_err_px: (frames, persons, joints) mean reprojection error over the
             views used, in pixels (NaN when not applicable).
         source: which stage produced it.
+        filled: (frames, persons, joints) bool; True where the joint was not measured but
+            placed from the person's skeleton (``pipeline.stages.joint_fill``); such joints
+            are valid with a reduced confidence. Empty on input means none.
     """
 
     joint_names: tuple[str, ...]
@@ -42,6 +45,7 @@ class Keypoints3D:
     n_views: np.ndarray
     reproj_err_px: np.ndarray
     source: str
+    filled: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     def __post_init__(self) -> None:
         f = self.frame_indices.shape[0] if isinstance(self.frame_indices, np.ndarray) else -1
@@ -54,6 +58,9 @@ class Keypoints3D:
         check_array("Keypoints3D.confidence", self.confidence, (f, p, j), "f")
         check_array("Keypoints3D.n_views", self.n_views, (f, p, j), "iu")
         check_array("Keypoints3D.reproj_err_px", self.reproj_err_px, (f, p, j), "f")
+        if self.filled.size == 0:
+            object.__setattr__(self, "filled", np.zeros((f, p, j), dtype=bool))
+        check_array("Keypoints3D.filled", self.filled, (f, p, j), "b")
         check_finite_where("Keypoints3D.xyz_m", self.xyz_m, self.valid)
         if self.source not in SOURCES:
             raise ValueError(f"Keypoints3D.source must be one of {SOURCES}, got {self.source!r}")
@@ -95,7 +102,11 @@ class Keypoints3D:
         )
 
     def replace(self, **kw: object) -> Keypoints3D:
+        """A copy with fields replaced; ``filled`` is dropped when the extent changes
+        (frames, persons or joints) and no new ``filled`` is given."""
         d = dict(self.__dict__)
+        if "filled" not in kw and any(k in kw for k in ("frame_indices", "person_ids", "joint_names")):
+            d["filled"] = np.zeros(0, dtype=bool)
         d.update(kw)
         return Keypoints3D(**d)  # type: ignore[arg-type]
 

@@ -89,9 +89,10 @@ def gather_inputs(
         kp3d = np.zeros((nf, nj, 3))
         w3d = np.zeros((nf, nj))
         kp3d[:, d3] = np.where(keypoints3d.valid[:, p, s3, None], keypoints3d.xyz_m[:, p][:, s3], 0.0)
-        w3d[:, d3] = np.where(
-            keypoints3d.valid[:, p, s3], np.clip(keypoints3d.confidence[:, p, s3], 0, 1), 0.0
-        )
+        # Joints the triangulation only filled from the skeleton are not targets: the body
+        # model places them itself.
+        measured = keypoints3d.valid[:, p, s3] & ~keypoints3d.filled[:, p, s3]
+        w3d[:, d3] = np.where(measured, np.clip(keypoints3d.confidence[:, p, s3], 0, 1), 0.0)
         uv = np.zeros((nv, nf, nj, 2))
         w2d = np.zeros((nv, nf, nj))
         dets = np.flatnonzero((association.person_of_det == pid) & rows_ok)

@@ -11,6 +11,8 @@
    ``views - min_views`` batched rounds, so 16 cameras cost 14 rounds, not 2^16 subsets).
 4. Per joint and frame: reprojection error (px), number of views used, a confidence.
 5. ``pipeline.stages.filtering`` smooths, fills gaps and checks bone lengths.
+6. ``pipeline.stages.joint_fill`` places joints still missing (a face seen from behind, a
+   hidden foot) from the person's rigid neighbours, flagged ``filled``.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ from pipeline.schema.detections import Tracks2D
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.stages.filtering import FilterConfig, RayObservations
 from pipeline.stages.filtering import run as run_filter
+from pipeline.stages.joint_fill import FillConfig
+from pipeline.stages.joint_fill import run as run_fill
 
 
 @dataclass(frozen=True)
@@ -58,14 +62,19 @@ class TriangulateConfig:
     worse with two nearly opposite cameras, hence off by default."""
     filter: FilterConfig = field(default_factory=FilterConfig)
     """Temporal filter (a dict in ``session.json`` is accepted)."""
+    fill: FillConfig = field(default_factory=FillConfig)
+    """Filling of joints still missing after the filter from their rigid neighbours
+    (``pipeline.stages.joint_fill``; a dict in ``session.json`` is accepted)."""
 
     def __post_init__(self) -> None:
-        if isinstance(self.filter, dict):
-            known = {f.name for f in fields(FilterConfig)}
-            extra = set(self.filter) - known
-            if extra:
-                raise ValueError(f"TriangulateConfig.filter: unknown keys {sorted(extra)}; known: {sorted(known)}")
-            object.__setattr__(self, "filter", FilterConfig(**self.filter))
+        for name, cls in (("filter", FilterConfig), ("fill", FillConfig)):
+            value = getattr(self, name)
+            if isinstance(value, dict):
+                known = {f.name for f in fields(cls)}
+                extra = set(value) - known
+                if extra:
+                    raise ValueError(f"TriangulateConfig.{name}: unknown keys {sorted(extra)}; known: {sorted(known)}")
+                object.__setattr__(self, name, cls(**value))
         if self.min_views < 2:
             raise ValueError(f"TriangulateConfig.min_views must be >= 2, got {self.min_views}")
 
@@ -146,7 +155,7 @@ def run(
         source="triangulation",
     )
     if not cfg.filter.enabled:
-        return raw, run_filter(raw, cfg.filter)
+        return raw, run_fill(run_filter(raw, cfg.filter), cfg.fill)
     info = point_information(P, X, used, conf, focal, cfg.pixel_std_px) if cfg.point_covariance else None
     single = ~ok & ((conf > 0).sum(axis=-1) >= 1)
     best = np.argmax(conf, axis=-1)
@@ -160,7 +169,7 @@ def run(
         conf=np.take_along_axis(conf, best[..., None], axis=-1)[..., 0],
         pixel_std_px=cfg.pixel_std_px,
     )
-    return raw, run_filter(raw, cfg.filter, meas_info=info, rays=rays)
+    return raw, run_fill(run_filter(raw, cfg.filter, meas_info=info, rays=rays), cfg.fill)
 
 
 def summary(raw: Keypoints3D, filtered: Keypoints3D) -> dict[str, Any]:
