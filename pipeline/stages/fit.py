@@ -134,6 +134,7 @@ def run(
     and root translation per frame). Raises ``ValueError`` for inconsistent inputs and, for
     SMPL/SMPL-X, when the ``smplx`` package or the model files are missing."""
     t_start = time.perf_counter()
+    cfg = cfg.at_rate(keypoints3d.fps)
     if cfg.body_model == "anny":
         from pipeline.backends.anny_fit import fit_anny
         from pipeline.backends.anny_model import anny_fit_body

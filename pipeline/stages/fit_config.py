@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 from pipeline.schema.config_types import check_field_types
@@ -43,6 +43,13 @@ class FitConfig:
     w_smooth: float = 1e-3
     """w4: squared pose change plus squared whole-mesh vertex displacement between
     consecutive frames (rad^2 + m^2 summed over all vertices; exact, via folded moments)."""
+
+    reference_fps: float = 50.0
+    """Frame rate (Hz, > 0) at which the per-frame temporal settings below (``w_smooth``,
+    ``w_accel``, ``accel_scale_m``, ``w_jerk``, ``accel_adapt_*``) are stated. At another
+    rate the stage converts them (``at_rate``) so that the same motion, in m/s² and m/s³,
+    costs the same and the smoothing keeps its cut-off in Hz: a 25 fps bout is not
+    smoothed 16 times harder than a 50 fps one."""
 
     w_accel: float = 300.0
     """Squared second difference of the fitted keypoints (m^2 per frame^2; ours, not in the
@@ -236,6 +243,25 @@ class FitConfig:
     smpl_gender: Literal["neutral", "male", "female"] = "neutral"
     """SMPL/SMPL-X only: which model file of ``body_model_path`` to fit (``SMPL_<GENDER>.pkl``)."""
 
+    def at_rate(self, fps: float) -> FitConfig:
+        """This config with its temporal settings converted from ``reference_fps`` to ``fps``
+        (a k-th difference of the same motion scales as ``fps^-k``); unchanged at the reference."""
+        if not fps > 0:
+            raise ValueError(f"FitConfig.at_rate: fps must be positive, got {fps!r}")
+        r = fps / self.reference_fps
+        if r == 1.0:
+            return self
+        return replace(
+            self,
+            reference_fps=fps,
+            w_smooth=self.w_smooth * r**2,
+            w_accel=self.w_accel * r**4,
+            accel_scale_m=self.accel_scale_m / r**2,
+            accel_adapt_scale_m=self.accel_adapt_scale_m / r**2,
+            accel_adapt_window=max(1, round(self.accel_adapt_window * r)) if self.accel_adapt_window else 0,
+            w_jerk=self.w_jerk * r**6,
+        )
+
     def __post_init__(self) -> None:
         check_field_types(self)  # values from Python callers; session.json goes through build_config
         for name in (
@@ -259,7 +285,7 @@ class FitConfig:
         for name in ("accel_adapt_after", "accel_adapt_window"):
             if getattr(self, name) < 0:
                 raise ValueError(f"FitConfig.{name} must be >= 0, got {getattr(self, name)}")
-        for name in ("accel_adapt_scale_m", "accel_adapt_gain", "landmark_step"):
+        for name in ("accel_adapt_scale_m", "accel_adapt_gain", "landmark_step", "reference_fps"):
             if not getattr(self, name) > 0:  # also refuses NaN
                 raise ValueError(f"FitConfig.{name} must be positive, got {getattr(self, name)}")
         if self.gm_sigma_px <= 0:

@@ -404,3 +404,33 @@ def test_jerk_term_weights_third_differences_and_acts_only_when_reweighted() -> 
     assert float(with_w["jerk"]) == pytest.approx(10.0 * expect)
     off = (FitConfig(w_jerk=0.0, w_accel=0.0, w_2d=0.0, w_smooth=0.0), *args[1:])
     assert "jerk" not in sequence_terms(*off, *rest, accel_weights=w)
+
+
+def test_temporal_weights_follow_the_frame_rate() -> None:
+    """The same motion costs the same at any frame rate: a k-th difference of a sampled
+    motion scales as fps^-k, so the weights scale as fps^(2k) and the robust scales as fps^-k."""
+    from pipeline.backends.fit_common import accel_term
+
+    cfg = FitConfig(accel_whole_body=1.0)
+    assert cfg.at_rate(cfg.reference_fps) is cfg
+    for fps in (25.0, 60.0):
+        c = cfg.at_rate(fps)
+        r = fps / cfg.reference_fps
+        assert c.w_accel == pytest.approx(cfg.w_accel * r**4) and c.w_jerk == pytest.approx(cfg.w_jerk * r**6)
+        assert c.w_smooth == pytest.approx(cfg.w_smooth * r**2)
+        assert c.accel_scale_m == pytest.approx(cfg.accel_scale_m / r**2)
+        # A 3 m/s^2 oscillation sampled at 50 fps and at ``fps``: the per-frame acceleration
+        # penalty, summed over one second, is the same once the weights are converted
+        # (per-frame sums scale with the number of frames, as the data terms do).
+        torch = pytest.importorskip("torch")
+
+        def per_second(rate: float, conf: FitConfig) -> float:
+            t = np.arange(int(rate)) / rate
+            x = np.zeros((1, t.size, 1, 3))
+            x[0, :, 0, 0] = 3.0 / (2 * np.pi) ** 2 * np.sin(2 * np.pi * t)
+            kp = torch.tensor(x, dtype=torch.float64)
+            return float(conf.w_accel * accel_term(kp, conf.accel_scale_m, 1.0, None)) / t.size
+
+        assert per_second(fps, c) == pytest.approx(per_second(cfg.reference_fps, cfg), rel=0.05)
+    with pytest.raises(ValueError, match="fps must be positive"):
+        cfg.at_rate(0.0)
