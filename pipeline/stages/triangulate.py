@@ -48,7 +48,7 @@ class TriangulateConfig:
     method: Literal["lstsq", "svd"] = "lstsq"
     """DLT solver (``pipeline.geometry.dlt.triangulate_weighted``): ``svd`` is the paper's
     homogeneous solution, ``lstsq`` the same rows with ``X_4 = 1`` (faster, same accuracy)."""
-    max_view_err_px: float = 12.0
+    max_view_err_px: float = 20.0
     """A view whose reprojection error exceeds this is dropped (while more than ``min_views`` remain)."""
     max_mean_err_px: float = 30.0
     """A joint whose mean reprojection error over the kept views still exceeds this is invalid."""
