@@ -1,8 +1,8 @@
 """Per-frame diagnostics for the timeline and the plots (pure numpy).
 
 Problem frames are where an analyst should look first: low identity confidence
-(association), high reprojection error (triangulation) and deep inter-person
-penetration (physics).
+(association), high reprojection error and deep inter-person penetration, as the
+evaluate stage flagged them (``pipeline.stages.evaluate.problem_flags``).
 """
 
 from __future__ import annotations
@@ -14,18 +14,6 @@ import numpy as np
 
 from pipeline.schema.keypoints3d import Keypoints3D
 from webui.scene.session_data import SessionData
-
-
-@dataclass(frozen=True)
-class ProblemThresholds:
-    """When a frame is flagged."""
-
-    id_confidence_min: float = 0.5
-    """A detection associated with confidence below this flags its frame."""
-    reproj_err_px_max: float = 15.0
-    """Mean reprojection error of a person (over valid joints) above this flags the frame."""
-    penetration_m_max: float = 0.03
-    """Penetration depth between two persons' geoms above this flags the frame."""
 
 
 @dataclass(frozen=True)
@@ -92,31 +80,17 @@ def per_frame_reproj_error(kp: Keypoints3D, n_frames: int) -> np.ndarray:
     return out
 
 
-def compute_problems(data: SessionData, th: ProblemThresholds = ProblemThresholds()) -> FrameProblems:
+def compute_problems(data: SessionData) -> FrameProblems:
+    """The evaluate stage's per-frame flags (``evaluate/problems.npz``) on the viewer's frames;
+    none while that stage has not run. One definition of a problem: ``pipeline.stages.evaluate``."""
     n = data.n_frames
-    low = np.zeros(n, dtype=bool)
-    if data.association is not None and data.tracks is not None:
-        sel = (data.association.confidence < th.id_confidence_min) & (data.tracks.track_id >= 0)
-        # A detection attributed to nobody with low confidence is a bystander, not a doubt.
-        sel &= data.association.person_of_det >= 0
-        low[np.unique(data.tracks.frame[sel])] = True
-    high = np.zeros(n, dtype=bool)
-    kp = data.keypoints.get("triangulated")
-    if kp is not None:
-        e = per_frame_reproj_error(kp, n)
-        with np.errstate(invalid="ignore"):
-            high = np.any(e > th.reproj_err_px_max, axis=1)
-    pen = np.zeros(n, dtype=bool)
-    ph = data.physics
-    if ph is not None and ph.contact_frame.size:
-        between = (ph.contact_person[:, 0] >= 0) & (ph.contact_person[:, 1] >= 0)
-        between &= ph.contact_person[:, 0] != ph.contact_person[:, 1]
-        deep = between & (ph.contact_depth_m > th.penetration_m_max)
-        rows = ph.contact_frame[deep]
-        rows = rows[rows < ph.frame_indices.shape[0]]
-        frames = ph.frame_indices[rows]
-        pen[frames[frames < n]] = True
-    return FrameProblems(low, high, pen)
+    out = [np.zeros(n, dtype=bool) for _ in range(3)]
+    pf = data.problems
+    if pf is not None and pf.flags.shape == (pf.frame_indices.shape[0], 3):
+        keep = (pf.frame_indices >= 0) & (pf.frame_indices < n)
+        for k in range(3):
+            out[k][pf.frame_indices[keep]] = pf.flags[keep, k]
+    return FrameProblems(*out)
 
 
 @dataclass(frozen=True)

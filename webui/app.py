@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import viser
 
-from webui.analysis import FrameProblems, ProblemThresholds, compute_problems, compute_series
+from webui.analysis import FrameProblems, compute_problems, compute_series
 from webui.api_client import ApiClient, ApiError
 from webui.colors import IdentityPalette
 from webui.editing import (
@@ -58,12 +58,10 @@ class ViewerApp:
         session_id: str | None = None,
         role: str = "coach",
         max_image_width: int = 400,
-        thresholds: ProblemThresholds = ProblemThresholds(),
         data: SessionData | None = None,
     ) -> None:
         self.server, self.api, self.session_id, self.role = server, api, session_id, role
         self.session_dir = Path(session_dir)
-        self.thresholds = thresholds
         self.max_image_width = max_image_width
         self.frame = 0
         self.reloads = 0
@@ -76,7 +74,7 @@ class ViewerApp:
         self.data: SessionData = data if data is not None else load_session_data(self.session_dir)
         self.palette = self._load_palette()
         self.provider = FrameProvider(self.data, max_width=max_image_width)
-        self.problems: FrameProblems = compute_problems(self.data, thresholds)
+        self.problems: FrameProblems = compute_problems(self.data)
         server.gui.configure_theme(control_width="large", dark_mode=False)
         self.world = add_world(server, self.data.rig)
         # Start from the red corner's side, above the ropes, looking at where the athletes are.
@@ -280,7 +278,7 @@ class ViewerApp:
             return
         with self._reload_lock, self.server.atomic():
             previous, self.data = self.data, data
-            self.problems = compute_problems(data, self.thresholds)
+            self.problems = compute_problems(data)
             self.persons.data = data
             self._attach_heavy(previous)
             self.persons.build()

@@ -9,12 +9,14 @@ viewer's timeline marks ("identity confidence low", "reprojection error high",
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from pipeline.evaluate import metrics as M
+from pipeline.evaluate.consistency import MIN_KEYPOINT_CONF
 from pipeline.evaluate.physics_metrics import CapsuleProxy, inter_person_penetration_mm, physics_metrics
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
@@ -25,14 +27,32 @@ from pipeline.schema.keypoints3d import Keypoints3D
 
 @dataclass(frozen=True)
 class EvaluateConfig:
+    """Thresholds of the per-frame problem flags (the viewer's timeline marks)."""
+
     identity_conf_low: float = 0.5
-    """A frame is flagged when an athlete's lowest association confidence is below this."""
-    reproj_high_px: float = 15.0
-    """A frame is flagged when the median reprojection error of an athlete exceeds this (pixels)."""
+    """A frame is flagged when, for some athlete, the median association confidence of its
+    detections (one per view) is below this, in [0, 1]: most views are in doubt."""
+    reproj_high_frac: float = 0.03
+    """A frame is flagged when, for some athlete, the median over its views of each
+    detection's median keypoint error (confident keypoints, against the shown result)
+    exceeds this fraction of the detection's box height, in (0, 1): the result disagrees
+    with most cameras (3 % is 15 px for a person 500 px tall). One bad view is not a flag."""
     penetration_high_mm: float = 20.0
     """A frame is flagged when the inter-person penetration exceeds this (millimetres)."""
     body_radius_m: float = 0.06
     """Radius of the capsule proxy around bones used to estimate penetration from keypoints."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.identity_conf_low <= 1.0 or not 0.0 < self.reproj_high_frac < 1.0:
+            raise ValueError(
+                "EvaluateConfig: identity_conf_low must be in [0, 1] and reproj_high_frac in (0, 1), got "
+                f"{self.identity_conf_low}, {self.reproj_high_frac}"
+            )
+        if not self.penetration_high_mm >= 0 or not self.body_radius_m > 0:
+            raise ValueError(
+                f"EvaluateConfig: penetration_high_mm must be >= 0 and body_radius_m > 0, got "
+                f"{self.penetration_high_mm}, {self.body_radius_m}"
+            )
 
 
 @dataclass(frozen=True)
@@ -48,12 +68,19 @@ class EvaluateInputs:
 
 @dataclass(frozen=True)
 class ProblemFlags:
-    """Per-frame signals for the viewer (arrays of shape (frames,))."""
+    """Per-frame signals for the viewer (arrays of shape (frames,), worst athlete).
+
+    Fields: identity_conf_min, the lowest per-athlete median association confidence in
+    [0, 1]; reproj_err_px, the largest per-athlete median (over views) keypoint error in
+    pixels; reproj_rel, the same relative to the box height; penetration_mm, the capsule
+    overlap between persons in mm; flags, the thresholds applied.
+    """
 
     frame_indices: np.ndarray
     identity_conf_min: np.ndarray
     reproj_err_px: np.ndarray
     penetration_mm: np.ndarray
+    reproj_rel: np.ndarray = field(default_factory=lambda: np.zeros(0))
     flags: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), bool))
     """(frames, 3) bool: identity low, reprojection high, penetration high."""
 
@@ -108,30 +135,40 @@ def _source_metrics(est: Keypoints3D, gt: Keypoints3D) -> dict[str, Any]:
 
 
 def problem_flags(inp: EvaluateInputs, cfg: EvaluateConfig) -> ProblemFlags:
-    """Per-frame identity confidence, reprojection error and penetration, with thresholds applied."""
+    """Per-frame identity doubt, disagreement with the cameras and penetration of the shown
+    (last) result, each per athlete and robust to a single bad view (``EvaluateConfig``)."""
     best = next(iter(reversed(inp.sources.values())))
     frames = best.frame_indices
     F = frames.size
-    row_of = {int(f): i for i, f in enumerate(frames)}
-    assigned = inp.association.person_of_det >= 0
-    id_min = np.ones(F)
-    if assigned.any():
-        rows = np.array([row_of.get(int(f), -1) for f in inp.tracks.frame[assigned]])
-        keep = rows >= 0
-        np.minimum.at(id_min, rows[keep], inp.association.confidence[assigned][keep])
-    reproj = np.zeros(F)
-    tri = inp.sources.get("filtered") or inp.sources.get("raw")
-    if tri is not None:
-        err = M.reprojection_error(tri, inp.tracks, inp.association, inp.rig)  # (dets, joints), NaN = n/a
-        has = np.isfinite(err).any(axis=1) if err.size else np.zeros(0, bool)
-        if has.any():
-            med = np.nanmedian(err[has], axis=1)  # rows with at least one finite error only
-            rows = np.array([row_of.get(int(f), -1) for f in inp.tracks.frame[has]])
-            ok = rows >= 0
-            np.maximum.at(reproj, rows[ok], med[ok])
+    tracks, assoc = inp.tracks, inp.association
+    row = np.searchsorted(frames, tracks.frame)
+    row_ok = (row < F) & (frames[np.minimum(row, max(F - 1, 0))] == tracks.frame) if F else np.zeros(tracks.n_dets, bool)
+    err = M.reprojection_error(best, tracks, assoc, inp.rig)  # (dets, joints), NaN = n/a
+    err = np.where(tracks.keypoint_conf >= MIN_KEYPOINT_CONF, err, np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # detections with no scored keypoint
+        det_px = np.nanmedian(err, axis=1) if err.size else np.full(tracks.n_dets, np.nan)
+    height = np.maximum(tracks.bbox_xyxy_px[:, 3] - tracks.bbox_xyxy_px[:, 1], 1.0)
+    id_min, rep_px, rep_rel = np.ones(F), np.zeros(F), np.zeros(F)
+    for pid in assoc.person_ids:
+        sel = np.flatnonzero((assoc.person_of_det == pid) & row_ok)
+        for r, dets in _group(row[sel], sel):
+            id_min[r] = min(id_min[r], float(np.median(assoc.confidence[dets])))
+            scored = dets[np.isfinite(det_px[dets])]
+            if scored.size:
+                rep_px[r] = max(rep_px[r], float(np.median(det_px[scored])))
+                rep_rel[r] = max(rep_rel[r], float(np.median(det_px[scored] / height[scored])))
     pen = capsule_penetration_mm(best, cfg.body_radius_m)
-    flags = np.stack([id_min < cfg.identity_conf_low, reproj > cfg.reproj_high_px, pen > cfg.penetration_high_mm], axis=1)
-    return ProblemFlags(frames, id_min, reproj, pen, flags)
+    flags = np.stack([id_min < cfg.identity_conf_low, rep_rel > cfg.reproj_high_frac, pen > cfg.penetration_high_mm], axis=1)
+    return ProblemFlags(frames, id_min, rep_px, pen, rep_rel, flags)
+
+
+def _group(keys: np.ndarray, values: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """``values`` grouped by equal ``keys``: [(key, values with that key)]."""
+    order = np.argsort(keys, kind="stable")
+    k, v = keys[order], values[order]
+    cuts = np.flatnonzero(np.diff(k)) + 1
+    return [(int(kk[0]), vv) for kk, vv in zip(np.split(k, cuts), np.split(v, cuts), strict=True) if kk.size]
 
 
 def run(inp: EvaluateInputs, cfg: EvaluateConfig) -> tuple[dict[str, Any], ProblemFlags]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from pipeline.schema import COCO17, Association, Keypoints3D
 from pipeline.stages.evaluate import EvaluateConfig, EvaluateInputs, capsule_penetration_mm, run
@@ -70,3 +71,31 @@ def test_evaluate_reports_physical_plausibility() -> None:
     assert fit["inter_penetration_max_mm"] > 0.0
     assert abs(fit["foot_skate_mm_per_frame"] - 5.0) < 0.01  # 10 mm/frame for one of two persons
     assert "foot_skate_mm_per_frame" not in metrics["sources"]["raw"]
+
+
+def test_flags_need_most_views_of_an_athlete_to_disagree() -> None:
+    """One bad view (a failed 2D detection, a doubtful identity) does not flag a frame;
+    the same error in most views does, relative to the person's size in the image."""
+    import dataclasses
+
+    rig = make_rig(3)
+    tracks, X = make_tracks(rig, n_frames=6)
+    est = Keypoints3D.empty(COCO17, np.array([0, 1]), np.arange(6), 50.0, "fit").replace(
+        xyz_m=X, valid=np.ones((6, 2, 17), bool), confidence=np.ones((6, 2, 17))
+    )
+    kp = tracks.keypoints_px.copy()
+    conf = np.ones(tracks.n_dets)
+    height = tracks.bbox_xyxy_px[:, 3] - tracks.bbox_xyxy_px[:, 1]
+    one = (tracks.frame == 1) & (tracks.track_id == 0) & (tracks.view == 0)
+    most = (tracks.frame == 3) & (tracks.track_id == 1) & (tracks.view >= 1)
+    for sel in (one, most):
+        kp[sel] += 0.2 * height[sel, None, None]  # 20 % of the person's height off
+        conf[sel] = 0.1
+    tracks = dataclasses.replace(tracks, keypoints_px=kp)
+    assoc = Association(np.array([0, 1]), ("A", "B"), tracks.track_id.copy(), conf)
+    _, flags = run(EvaluateInputs(rig, tracks, assoc, {"fit": est}), EvaluateConfig())
+    assert flags.flags[:, 0].tolist() == [f == 3 for f in range(6)]
+    assert flags.flags[:, 1].tolist() == [f == 3 for f in range(6)]
+    assert 0.15 < flags.reproj_rel[3] < 0.35 and flags.reproj_err_px[1] < flags.reproj_err_px[3]
+    with pytest.raises(ValueError, match="reproj_high_frac"):
+        EvaluateConfig(reproj_high_frac=1.5)

@@ -1,6 +1,6 @@
 """A small session built in code: 3-camera rig, two persons walking, artifacts of
-track/associate/triangulate (and optionally physics contacts), written with the
-real schema classes and ``ArtifactStore.write``."""
+track/associate/triangulate (and optionally physics contacts) and the evaluate stage's
+problem flags, written with the real schema classes and ``ArtifactStore.write``."""
 
 from __future__ import annotations
 
@@ -14,6 +14,8 @@ from pipeline.geometry.rotations import look_at_T_world_cam
 from pipeline.io.calibration import save_toml
 from pipeline.schema import COCO17, Association, CameraRig, Keypoints3D, SessionConfig, Tracks2D, save_npz
 from pipeline.schema.results import PhysicsResult
+from pipeline.stages.evaluate import EvaluateConfig, EvaluateInputs
+from pipeline.stages.evaluate import run as evaluate
 
 FAST_STAGES: tuple[str, ...] = ("detect2d", "track", "associate", "triangulate")
 """Stages the viewer tests run through the real worker (fit and physics would be slow)."""
@@ -77,13 +79,15 @@ def build_session(
         for f in range(n_frames):
             for p in range(2):
                 k = uv[v, f, p]
+                if f == n_frames - 2 and p == 1:  # every view disagrees with the 3D here
+                    k = k + 0.15 * (k[:, 1].max() - k[:, 1].min())
                 rows["view"].append(v)
                 rows["frame"].append(f)
                 rows["bbox"].append([*k.min(0) - 5, *k.max(0) + 5])
                 rows["kp"].append(k)
                 rows["tid"].append(10 + p)  # per-view track ids 10 (person 0) and 11 (person 1)
                 rows["pid"].append(p)
-                rows["conf"].append(0.2 if (f == low_conf_frame and v == 0) else 0.95)
+                rows["conf"].append(0.2 if (f == low_conf_frame and v <= 1) else 0.95)  # doubt in 2 of 3 views
     n = len(rows["view"])
     tracks = Tracks2D(
         joint_names=COCO17, n_views=n_views, n_frames=n_frames,
@@ -111,6 +115,7 @@ def build_session(
     store.write(_manifest("track"), {"tracks": tracks})
     store.write(_manifest("associate"), {"association": assoc})
     store.write(_manifest("triangulate"), {"keypoints3d": kp})
+    sources: dict[str, Keypoints3D] = {"filtered": kp}
     if physics:
         f = np.arange(n_frames)
         res = PhysicsResult(
@@ -119,7 +124,13 @@ def build_session(
             actuation="pd", contact_frame=np.array([3, 4]), contact_person=np.array([[0, 1], [0, -1]]),
             contact_body=np.zeros((2, 2), dtype=np.int64), contact_depth_m=np.array([0.08, 0.2]), body_names=("a",),
         )  # fmt: skip
-        store.write(_manifest("physics"), {"result": res, "keypoints3d": kp.replace(source="physics"), "scene.xml": _TWO_BALLS_XML})
+        xyz = X.copy()
+        if n_frames > 3:
+            xyz[3, 1] = X[3, 0] + np.array([0.05, 0.0, 0.0])  # the physics result overlaps at frame 3
+        sources["physics"] = kp.replace(source="physics", xyz_m=xyz)
+        store.write(_manifest("physics"), {"result": res, "keypoints3d": sources["physics"], "scene.xml": _TWO_BALLS_XML})
+    _, flags = evaluate(EvaluateInputs(rig, tracks, assoc, sources), EvaluateConfig())
+    store.write(_manifest("evaluate"), {"problems": flags.to_arrays()})
     return sdir
 
 

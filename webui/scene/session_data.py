@@ -22,6 +22,7 @@ from pipeline.schema.detections import Tracks2D
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import BodyFit, PhysicsResult
 from pipeline.schema.session import SessionConfig
+from pipeline.stages.evaluate import ProblemFlags
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +49,7 @@ class SessionData:
         physics: ``physics/result.npz`` or None.
         physics_xml: path of ``physics/scene.xml`` or None.
         metrics: ``evaluate/metrics.json`` content (empty when absent).
+        problems: ``evaluate/problems.npz`` (the per-frame problem flags) or None.
         stamp: manifests' creation times, to notice a re-run.
     """
 
@@ -62,6 +64,7 @@ class SessionData:
     physics: PhysicsResult | None = None
     physics_xml: Path | None = None
     metrics: dict[str, Any] = field(default_factory=dict)
+    problems: ProblemFlags | None = None
     stamp: tuple[float, ...] = ()
     _row_keys: np.ndarray | None = None
     _row_order: np.ndarray | None = None
@@ -166,6 +169,7 @@ def load_session_data(session_dir: str | Path) -> SessionData:
             metrics = json.loads(store.path("evaluate", "metrics.json").read_text())
         except json.JSONDecodeError as e:
             log.warning("evaluate/metrics.json is malformed: %s", e)
+    problems = _load_problems(store)
     n_frames = tracks.n_frames if tracks is not None else 0
     for kp in keypoints.values():
         if kp.n_frames:
@@ -182,8 +186,21 @@ def load_session_data(session_dir: str | Path) -> SessionData:
         physics=physics,
         physics_xml=physics_xml,
         metrics=metrics,
+        problems=problems,
         stamp=_stamp(store),
     )
+
+
+def _load_problems(store: ArtifactStore) -> ProblemFlags | None:
+    """``evaluate/problems.npz`` as ``ProblemFlags``; None when absent or unreadable (logged)."""
+    if not store.has("evaluate", "problems.npz"):
+        return None
+    try:
+        with np.load(store.path("evaluate", "problems.npz"), allow_pickle=False) as z:
+            return ProblemFlags(**{k: z[k] for k in z.files})
+    except (OSError, ValueError, TypeError) as e:
+        log.warning("evaluate/problems.npz is unreadable (stale artifact?): %s", e)
+        return None
 
 
 def frame_row(kp: Keypoints3D, frame: int) -> int | None:
