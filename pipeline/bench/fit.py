@@ -81,7 +81,7 @@ def run_bench(
             load_s=load_s,
             cpu_s=m.get("time_shape_cpu_s", float("nan")) + m.get("time_pose_cpu_s", float("nan")),
             fps_per_person=n_frames / max(total / max(res.bodyfit.person_ids.shape[0], 1), 1e-9),
-            reproj_px=m.get("reproj_err_px", float("nan")),
+            reproj_px=m.get("reproj_median_px", float("nan")),
         )
         from pipeline.backends.anny_body import posed_mesh
 

@@ -182,9 +182,10 @@ def _session_row(store: Any, reports: list[Any], work_dir: Path) -> dict[str, An
     row["time_total_s"] = total
     # The stages' own metrics, for comparison: triangulation over its kept views, fit's loss view.
     for stage, key, name in (
-        ("triangulate", "median_reproj_err_px", "tri_kept_views_median_px"),
-        ("triangulate", "p95_reproj_err_px", "tri_kept_views_p95_px"),
-        ("fit", "reproj_err_px", "fit_own_reproj_px"),
+        ("triangulate", "kept_views_median_px", "tri_kept_views_median_px"),
+        ("triangulate", "kept_views_p95_px", "tri_kept_views_p95_px"),
+        ("triangulate", "reproj_median_px", "tri_all_views_median_px"),
+        ("fit", "reproj_median_px", "fit_all_views_median_px"),
     ):
         m = store.manifest(stage)
         if m is not None and key in m.metrics:
@@ -378,12 +379,14 @@ def print_table(rows: list[dict]) -> None:
 
     flags = Table(
         title=f"evaluate stage: frames flagged, % of {session.get('flag_frames', '?')}; the stages' own reprojection",
-        caption="tri own = triangulation over its kept views; fit own = the fit's reported reprojection error",
+        caption="tri own = the triangulation over its kept views; tri / fit all = the stages' own summaries, "
+        "all views (the reprojection table's metric)",
     )
     extra = (
         ("tri_kept_views_median_px", "tri own med px"),
         ("tri_kept_views_p95_px", "tri own p95 px"),
-        ("fit_own_reproj_px", "fit own px"),
+        ("tri_all_views_median_px", "tri all med px"),
+        ("fit_all_views_median_px", "fit all med px"),
     )
     for head in (*FLAG_KINDS, "any", *(h for _, h in extra)):
         flags.add_column(head, justify="right")

@@ -15,8 +15,8 @@ KEY_METRICS: dict[str, tuple[str, ...]] = {
     "detect2d": ("detections", "valid_keypoints_pct"),
     "track": ("tracks", "edits_applied"),
     "associate": ("persons", "mean_confidence", "edits_applied"),
-    "triangulate": ("median_reproj_err_px", "mean_views"),
-    "fit": ("residual_3d_mm", "reproj_err_px"),
+    "triangulate": ("reproj_median_px", "mean_views"),
+    "fit": ("reproj_median_px", "residual_3d_mm"),
     "physics": ("mujoco_inter_penetration_max_mm", "realtime_factor", "residual_force_mean_frac_bw"),
     "evaluate": ("identity_accuracy_pct", "mpjpe_mm_filtered", "mpjpe_mm_fit", "mpjpe_mm_physics"),
 }

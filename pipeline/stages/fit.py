@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.evaluate.consistency import reprojection_by_camera
 from pipeline.geometry.projection import undistort_points
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
@@ -211,9 +212,10 @@ def run(
         reproj_err_px=reproj,
         source="fit",
     )
-    used = valid[:, :, None] & np.isfinite(reproj)
+    rep = reprojection_by_camera(fitted, tracks, association, rig)
     summary: dict[str, float] = {
-        "reproj_err_px": round(float(reproj[used].mean()), 3) if used.any() else float("nan"),
+        "reproj_median_px": round(rep.median_all_px, 2),
+        "reproj_p95_px": round(rep.p95_all_px, 2),
         "residual_3d_mm": round(float(np.nanmean(loss) * 1000), 2) if fit_persons else float("nan"),
         "persons_fitted": len(fit_persons),
         "frames_valid_pct": round(100.0 * float(valid.mean()), 1),

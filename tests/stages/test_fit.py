@@ -73,7 +73,7 @@ def test_recovers_known_shape_and_pose_from_clean_keypoints(motion: AnnyMotion) 
     want = _joint_centres(motion.shape, motion.pose_aa, motion.root_m)
     assert np.linalg.norm(got - want, axis=-1).mean() < 0.01
     assert np.abs(bf.root_translation_m[:, 0] - motion.root_m).max() < 0.02
-    assert res.metrics["reproj_err_px"] < 2.0
+    assert res.metrics["reproj_median_px"] < 2.0 and res.metrics["reproj_p95_px"] < 5.0
 
 
 def test_shape_keeps_girth_near_its_prior(motion: AnnyMotion) -> None:
@@ -411,6 +411,7 @@ def test_temporal_weights_follow_the_frame_rate() -> None:
     motion scales as fps^-k, so the weights scale as fps^(2k) and the robust scales as fps^-k."""
     from pipeline.backends.fit_common import accel_term
 
+    torch = pytest.importorskip("torch")
     cfg = FitConfig(accel_whole_body=1.0)
     assert cfg.at_rate(cfg.reference_fps) is cfg
     for fps in (25.0, 60.0):
@@ -422,8 +423,6 @@ def test_temporal_weights_follow_the_frame_rate() -> None:
         # A 3 m/s^2 oscillation sampled at 50 fps and at ``fps``: the per-frame acceleration
         # penalty, summed over one second, is the same once the weights are converted
         # (per-frame sums scale with the number of frames, as the data terms do).
-        torch = pytest.importorskip("torch")
-
         def per_second(rate: float, conf: FitConfig) -> float:
             t = np.arange(int(rate)) / rate
             x = np.zeros((1, t.size, 1, 3))

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pipeline.evaluate.consistency import reprojection_by_camera
 from pipeline.evaluate.metrics import mpjpe, pcp, reprojection_error
 from pipeline.schema import Association
 from pipeline.stages.filtering import FilterConfig
@@ -44,8 +45,10 @@ def test_noisy_accuracy_records_and_filtering() -> None:
     # The stage's error equals the metric's (undistorted vs distorted px: close).
     err = reprojection_error(raw, s.tracks, assoc, s.rig)
     assert abs(np.nanmedian(err) - med) < 0.5
-    m = summary(raw, filtered)
+    m = summary(raw, filtered, s.tracks, assoc, s.rig)
     assert m["valid_raw_pct"] > 95 and m["mean_views"] > 3.5
+    # The summary's all-view error is the consistency metric's.
+    assert m["reproj_median_px"] == round(reprojection_by_camera(filtered, s.tracks, assoc, s.rig).median_all_px, 2)
 
 
 def test_outlier_view_is_rejected_per_joint() -> None:
@@ -118,7 +121,7 @@ def test_runner_steps_end_to_end(tmp_path: Path) -> None:
     assert assoc.person_names == ("Red", "Blue") and kp.source == "filtered" and raw.source == "triangulation"
     assert mpjpe(kp, s.gt_keypoints()) < 25.0
     m = store.manifest("triangulate")
-    assert m is not None and m.metrics["median_reproj_err_px"] < 5 and m.config["filter"]["jerk_std"] == 120.0
+    assert m is not None and m.metrics["kept_views_median_px"] < 5 and m.metrics["reproj_median_px"] < 5 and m.config["filter"]["jerk_std"] == 120.0
     save_annotations(tmp_path / "annotations.json", [SwapIdentities(frame=10, person_a=0, person_b=1)])
     st = stage_status(tmp_path)
     assert st["track"] == "fresh" and st["associate"] != "fresh" and st["triangulate"] != "fresh"

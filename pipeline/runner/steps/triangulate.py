@@ -15,7 +15,7 @@ def _execute(ctx: StageContext, cfg: TriangulateConfig) -> dict[str, Any]:
     tracks = ctx.load("track", "tracks", Tracks2D)
     assoc = ctx.load("associate", "association", Association)
     raw, filtered = run_triangulate(tracks, assoc, ctx.rig, cfg)
-    ctx.metrics.update(summary(raw, filtered))
+    ctx.metrics.update(summary(raw, filtered, tracks, assoc, ctx.rig))
     return {"raw": raw, "keypoints3d": filtered}
 
 
