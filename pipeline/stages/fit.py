@@ -16,7 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.evaluate.consistency import reprojection_by_camera
+from pipeline.evaluate.consistency import MIN_KEYPOINT_CONF, reprojection_by_camera
+from pipeline.evaluate.metrics import reprojection_error
 from pipeline.geometry.projection import undistort_points
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
@@ -68,7 +69,9 @@ def gather_inputs(
 ) -> list[PersonInputs]:
     """Per-person 3D targets and undistorted 2D keypoints of every view, aligned on
     ``keypoints3d.frame_indices``. Detections of frames outside them are ignored; when a
-    person has several detections in one view and frame, the highest-scoring one is used."""
+    person has several detections in one view and frame, the highest-scoring one is used.
+    A detection that disagrees with the triangulated person as a whole (``outlier_view_frac``:
+    a failed 2D pose, a wrong person) is left out of the 2D term."""
     if association.person_of_det.shape[0] != tracks.n_dets:
         raise ValueError(
             f"fit: association has {association.person_of_det.shape[0]} rows but tracks have {tracks.n_dets}"
@@ -85,6 +88,7 @@ def gather_inputs(
         sel = tracks.view == v
         if sel.any():
             undist[sel] = undistort_points(tracks.keypoints_px[sel], rig.K[v], rig.dist[v])
+    outlier = outlier_detections(keypoints3d, tracks, association, rig, cfg.outlier_view_frac)
     out = []
     for p, pid in enumerate(keypoints3d.person_ids):
         kp3d = np.zeros((nf, nj, 3))
@@ -96,7 +100,7 @@ def gather_inputs(
         w3d[:, d3] = np.where(measured, np.clip(keypoints3d.confidence[:, p, s3], 0, 1), 0.0)
         uv = np.zeros((nv, nf, nj, 2))
         w2d = np.zeros((nv, nf, nj))
-        dets = np.flatnonzero((association.person_of_det == pid) & rows_ok)
+        dets = np.flatnonzero((association.person_of_det == pid) & rows_ok & ~outlier)
         dets = dets[np.argsort(tracks.bbox_score[dets], kind="stable")]  # best written last
         for i in dets:
             v, f = tracks.view[i], rows[i]
@@ -109,6 +113,25 @@ def gather_inputs(
             uv[v, f, d2] = np.where(ok[:, None], undist[i, s2], 0.0)
             w2d[v, f, d2] = np.where(ok, conf, 0.0)
         out.append(PersonInputs(kp3d_m=kp3d, w3d=w3d, uv_px=uv, w2d=w2d))
+    return out
+
+
+def outlier_detections(
+    keypoints3d: Keypoints3D, tracks: Tracks2D, association: Association, rig: CameraRig, max_frac: float
+) -> np.ndarray:
+    """(dets,) True for an associated detection whose confident keypoints (>= 0.5) lie, in the
+    median, farther than ``max_frac`` of its box height from the projections of its person's
+    triangulated joints: the whole 2D pose disagrees with the other views. 0 disables."""
+    out = np.zeros(tracks.n_dets, dtype=bool)
+    if max_frac <= 0:
+        return out
+    err = reprojection_error(keypoints3d, tracks, association, rig)
+    err = np.where(tracks.keypoint_conf >= MIN_KEYPOINT_CONF, err, np.nan)
+    scored = np.isfinite(err).sum(axis=1) >= 3
+    med = np.full(tracks.n_dets, np.nan)
+    med[scored] = np.nanmedian(err[scored], axis=1)
+    height = np.maximum(tracks.bbox_xyxy_px[:, 3] - tracks.bbox_xyxy_px[:, 1], 1.0)
+    out[scored] = med[scored] > max_frac * height[scored]
     return out
 
 

@@ -31,6 +31,12 @@ class FitConfig:
     min_conf_2d: float = 0.7
     """2D keypoints with confidence at or below this are ignored (paper: 0.7)."""
 
+    outlier_view_frac: float = 0.05
+    """A detection whose confident keypoints lie, in the median, farther than this fraction
+    of its box height from its person's triangulated joints is left out of the 2D term (a
+    failed 2D pose or a wrong person: the other views disagree with it as a whole), in
+    [0, 1); 0 keeps every detection."""
+
     w_2d: float = 1e-3
     """w1: confidence-weighted Geman-McClure reprojection error over every view (pixels^2)."""
 
@@ -294,6 +300,8 @@ class FitConfig:
             raise ValueError(f"FitConfig.girth_prior must be (muscle, weight) in [0, 1], got {self.girth_prior}")
         if not self.girth_prior_weight >= 0:  # also refuses NaN
             raise ValueError(f"FitConfig.girth_prior_weight must be >= 0, got {self.girth_prior_weight}")
+        if not 0 <= self.outlier_view_frac < 1:
+            raise ValueError(f"FitConfig.outlier_view_frac must be in [0, 1), got {self.outlier_view_frac}")
         if not 0 <= self.min_conf_2d < 1:
             raise ValueError(f"FitConfig.min_conf_2d must be in [0, 1), got {self.min_conf_2d}")
         if self.precision not in ("float32", "float64"):

@@ -129,6 +129,25 @@ def test_gather_inputs_maps_views_persons_and_threshold(motion: AnnyMotion) -> N
     assert np.all(inp[0].w2d[:, :, 1:] == pytest.approx(0.95))
 
 
+def test_a_detection_the_other_views_disagree_with_is_left_out(motion: AnnyMotion) -> None:
+    rig = _rig(3)
+    kp3d, tracks, assoc = _inputs(rig, [motion, motion])
+    h = tracks.bbox_xyxy_px[:, 3] - tracks.bbox_xyxy_px[:, 1]
+    kp = tracks.keypoints_px.copy()
+    bad = (tracks.frame == 4) & (tracks.view == 1) & (tracks.track_id == 0)
+    near = (tracks.frame == 6) & (tracks.view == 2) & (tracks.track_id == 0)
+    kp[bad] += 0.2 * h[bad, None, None]  # a failed pose: 20 % of the person's height off
+    kp[near] += 0.01 * h[near, None, None]  # noise
+    tracks = Tracks2D(**{**tracks.__dict__, "keypoints_px": kp})
+    inp = gather_inputs(kp3d, tracks, assoc, rig, FitConfig())
+    assert np.all(inp[0].w2d[1, 4] == 0) and np.all(inp[0].w2d[2, 6] > 0)
+    assert np.all(inp[0].w2d[0, 4] > 0)  # the other views of that frame stay
+    kept = gather_inputs(kp3d, tracks, assoc, rig, FitConfig(outlier_view_frac=0.0))
+    assert np.all(kept[0].w2d[1, 4] > 0)
+    with pytest.raises(ValueError, match="outlier_view_frac"):
+        FitConfig(outlier_view_frac=1.0)
+
+
 def test_missing_person_frames_are_marked_invalid(motion: AnnyMotion) -> None:
     rig = _rig(3)
     kp3d, tracks, assoc = _inputs(rig, [motion])
