@@ -137,3 +137,28 @@ def test_kill_mid_pipeline_then_resume(tiny_session: Path) -> None:
     reports = run(tiny_session)
     assert [(r.stage, r.action) for r in reports] == [("detect2d", "skipped"), ("track", "ran")]
     assert store.manifest("detect2d") == before
+
+
+def test_evaluate_ignores_artifacts_of_a_stage_the_session_no_longer_runs(tmp_path: Path) -> None:
+    import dataclasses
+
+    from pipeline.schema import SessionConfig
+    from tests.conftest import write_tiny_session
+
+    s = write_tiny_session(tmp_path / "s", stages=("detect2d", "track", "associate", "triangulate", "evaluate"))
+    run(s)
+    store = ArtifactStore(s)
+    metrics = json.loads(store.path("evaluate", "metrics.json").read_text())
+    assert set(metrics["sources"]) == {"raw", "filtered"}
+    # A physics artifact left over (here: a copy of the filtered keypoints) from a session
+    # that ran physics once, then dropped it from its stages.
+    from pipeline.artifacts import Manifest
+    from pipeline.schema.keypoints3d import Keypoints3D
+
+    kp = store.load("triangulate", "keypoints3d", Keypoints3D)
+    store.write(Manifest(stage="physics", code_version="old", config={}, config_hash="0", inputs={}), {"keypoints3d": kp.replace(source="physics")})
+    cfg = SessionConfig.load(s)
+    dataclasses.replace(cfg, stage_config={"evaluate": {"penetration_high_mm": 25.0}}).save(s)  # evaluate goes stale
+    run(s)
+    metrics = json.loads(store.path("evaluate", "metrics.json").read_text())
+    assert set(metrics["sources"]) == {"raw", "filtered"}

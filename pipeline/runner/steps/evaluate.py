@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.runner.registry import STAGE_ORDER
 from pipeline.runner.spec import StageContext, StageSpec
 from pipeline.schema.association import Association
 from pipeline.schema.base import load_npz
@@ -30,7 +31,13 @@ def _input_files(ctx: StageContext) -> list[Path]:
 
 def _execute(ctx: StageContext, cfg: EvaluateConfig) -> dict[str, Any]:
     s = ctx.session
-    sources = {name: ctx.load(stage, art, Keypoints3D) for name, stage, art in SOURCES if ctx.has(stage, f"{art}.npz")}
+    # Only stages this session runs: an artifact left by a stage since disabled is stale.
+    enabled = set(ctx.session.stages or STAGE_ORDER)
+    sources = {
+        name: ctx.load(stage, art, Keypoints3D)
+        for name, stage, art in SOURCES
+        if stage in enabled and ctx.has(stage, f"{art}.npz")
+    }
     gt = load_npz(ctx.resolve(s.ground_truth), Keypoints3D) if s.ground_truth else None
     labels = None
     if s.ground_truth_labels:
