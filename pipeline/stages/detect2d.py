@@ -33,8 +33,17 @@ class Detect2DConfig:
     """Person detector (registry name; see ``cornerman models list``)."""
     pose_model: Literal[
         "blazepose_full", "movenet_lightning", "rtmpose_m", "rtmpose_l", "vitpose_b", "vitpose_l", "vitpose_h"
-    ] = "blazepose_full"
-    """Top-down keypoint model; only BlazePose provides heels and big toes."""
+    ] = "movenet_lightning"
+    """Top-down keypoint model of the body. Of the small models that ship for tests, MoveNet
+    is the more consistent across views on real video (see ``docs/design``); only BlazePose
+    provides heels and big toes, hence ``foot_model``."""
+    foot_model: Literal["none", "blazepose_full"] = "blazepose_full"
+    """A second keypoint model run on the same boxes for the feet only: its heels and toes
+    are kept where its ankles agree with the main model's (``foot_ankle_max_frac``), so a
+    model without feet (MoveNet) still gets foot points. ``none``: only ``pose_model``'s."""
+    foot_ankle_max_frac: float = 0.05
+    """Largest distance between the two models' ankles, as a fraction of the box height, for
+    the foot model's heel and toes of that side to be used, in (0, 1)."""
     models_dir: str | None = None
     """Folder searched first for the model files (else ``$CORNERMAN_MODELS_DIR``, then the cache)."""
     det_score_thr: float = 0.3
@@ -70,6 +79,8 @@ class Detect2DConfig:
     """onnxruntime intra-op threads (0 = all cores)."""
 
     def __post_init__(self) -> None:
+        if not 0.0 < self.foot_ankle_max_frac < 1.0:
+            raise ValueError(f"Detect2DConfig.foot_ankle_max_frac must be in (0, 1), got {self.foot_ankle_max_frac!r}")
         if not 0.0 <= self.pose_nms_dist < 1.0:
             raise ValueError(f"Detect2DConfig.pose_nms_dist must be in [0, 1), got {self.pose_nms_dist!r}")
 
@@ -102,11 +113,12 @@ class Models:
             resolve_model(cfg.detector, cfg.models_dir),
             DetectorParams(cfg.det_score_thr, cfg.nms_iou, cfg.max_persons, (size, size), cfg.num_threads),
         )
-        self.pose = make_pose_estimator(
-            pose_info.decoder,
-            resolve_model(cfg.pose_model, cfg.models_dir),
-            PoseParams(crop_scale=cfg.crop_scale, upright=cfg.upright_crops, num_threads=cfg.num_threads),
-        )
+        params = PoseParams(crop_scale=cfg.crop_scale, upright=cfg.upright_crops, num_threads=cfg.num_threads)
+        self.pose = make_pose_estimator(pose_info.decoder, resolve_model(cfg.pose_model, cfg.models_dir), params)
+        self.feet = None
+        if cfg.foot_model != "none" and cfg.foot_model != cfg.pose_model:
+            foot_info = get_model(cfg.foot_model)
+            self.feet = make_pose_estimator(foot_info.decoder, resolve_model(cfg.foot_model, cfg.models_dir), params)
 
 
 def detect_boxes(
@@ -125,12 +137,45 @@ def process_frames(images: list[np.ndarray], models: Models, cfg: Detect2DConfig
     from pipeline.backends.onnx_pose import estimate_many
 
     dets = detect_boxes(images, models, cfg)
+    boxes = [b for b, _ in dets]
+    poses = estimate_many(models.pose, images, boxes)
+    if models.feet is not None:
+        feet = estimate_many(models.feet, images, boxes)
+        poses = [merge_feet(p, f, b, cfg.foot_ankle_max_frac) for p, f, b in zip(poses, feet, boxes, strict=True)]
     res = []
-    for (b, s), (kp, conf, valid) in zip(dets, estimate_many(models.pose, images, [b for b, _ in dets]), strict=True):
+    for (b, s), (kp, conf, valid) in zip(dets, poses, strict=True):
         valid = valid & (conf >= cfg.min_keypoint_conf) & np.isfinite(kp).all(axis=2)
         keep = duplicate_pose_keep(b, kp, conf, valid, cfg.pose_nms_dist)
         res.append(FrameResult(b[keep], s[keep], kp[keep], conf[keep], valid[keep]))
     return res
+
+
+_FOOT_POINTS = {
+    side: ([COCO17_FEET.index(f"{side}_{p}") for p in ("big_toe", "small_toe", "heel")], COCO17_FEET.index(f"{side}_ankle"))
+    for side in ("left", "right")
+}
+
+
+def merge_feet(
+    main: tuple[np.ndarray, np.ndarray, np.ndarray],
+    feet: tuple[np.ndarray, np.ndarray, np.ndarray],
+    boxes: np.ndarray,
+    max_frac: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``main``'s (kp (n, 23, 2), conf, valid) with the heel and toes of ``feet`` (same boxes)
+    on each side where both models see the ankle within ``max_frac`` of the box height.
+
+    The main model's own foot points are kept where it has them."""
+    kp, conf, valid = (a.copy() for a in main)
+    kf, cf, vf = feet
+    height = boxes[:, 3] - boxes[:, 1] if boxes.size else np.zeros(0)
+    for pts, ankle in _FOOT_POINTS.values():
+        agree = valid[:, ankle] & vf[:, ankle]
+        agree &= np.linalg.norm(kp[:, ankle] - kf[:, ankle], axis=-1) <= max_frac * height
+        for j in pts:
+            take = agree & vf[:, j] & ~valid[:, j]
+            kp[take, j], conf[take, j], valid[take, j] = kf[take, j], cf[take, j], True
+    return kp, conf, valid
 
 
 def _box_iou(a: np.ndarray, b: np.ndarray) -> float:

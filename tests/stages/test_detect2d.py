@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pipeline.schema.joints import COCO17_FEET
-from pipeline.stages.detect2d import Detect2DConfig, duplicate_pose_keep, run_videos
+from pipeline.stages.detect2d import Detect2DConfig, duplicate_pose_keep, merge_feet, run_videos
 from tests.conftest import make_rig
 
 
@@ -164,3 +164,24 @@ def test_pose_nms_drops_the_box_holding_another_persons_pose() -> None:
     assert duplicate_pose_keep(boxes, kp, few, valid, 0.1).all()
     with pytest.raises(ValueError, match="pose_nms_dist"):
         Detect2DConfig(pose_nms_dist=1.5)
+
+
+def test_foot_points_come_from_the_foot_model_where_the_ankles_agree() -> None:
+    J = len(COCO17_FEET)
+    la, ra = COCO17_FEET.index("left_ankle"), COCO17_FEET.index("right_ankle")
+    lh, rh = COCO17_FEET.index("left_heel"), COCO17_FEET.index("right_heel")
+    boxes = np.array([[0.0, 0.0, 100.0, 400.0]])
+    main_kp = np.zeros((1, J, 2))
+    main_kp[0, la], main_kp[0, ra] = (40, 390), (60, 390)
+    main_valid = np.zeros((1, J), bool)
+    main_valid[0, :17] = True  # a COCO-17 model: no feet
+    feet_kp = main_kp.copy()
+    feet_kp[0, ra] = (60, 330)  # its right ankle is 60 px (15 % of the box) off: that side is refused
+    feet_kp[0, lh], feet_kp[0, rh] = (35, 398), (55, 398)
+    feet_valid = np.ones((1, J), bool)
+    kp, conf, valid = merge_feet((main_kp, np.full((1, J), 0.9), main_valid), (feet_kp, np.full((1, J), 0.8), feet_valid), boxes, 0.05)
+    assert valid[0, lh] and tuple(kp[0, lh]) == (35, 398) and conf[0, lh] == 0.8
+    assert not valid[0, rh]
+    assert np.array_equal(kp[0, :17], main_kp[0, :17])  # the body stays the main model's
+    with pytest.raises(ValueError, match="foot_ankle_max_frac"):
+        Detect2DConfig(foot_ankle_max_frac=0.0)
