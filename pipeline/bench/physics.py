@@ -174,6 +174,7 @@ def _run_seed(
                 "rollouts_s": st.get("seconds_rollouts", 0.0),
                 "residual_windows": f"{st['windows_with_residual']}/{st['windows']}",
                 "residual_mean_frac_bw": st["residual_force_mean_frac_bw"],
+                "residual_max_frac_bw": st["residual_force_max_frac_bw"],
                 "mujoco_inter_pen_max_mm": st["mujoco_inter_penetration_max_mm"],
                 "body_pen_max_mm": st["body_penetration_max_mm"],
                 "body_pen_mean_mm": st["body_penetration_mean_mm"],
@@ -211,6 +212,7 @@ COLUMNS: tuple[tuple[str, str], ...] = (
     ("rollouts_s", "rollout s"),
     ("residual_windows", "residual win"),
     ("residual_mean_frac_bw", "residual bw"),
+    ("residual_max_frac_bw", "residual max bw"),
     ("needed_force_frac_bw", "needed F bw"),
     ("needed_torque_nm", "needed τ N·m"),
 )
