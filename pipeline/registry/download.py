@@ -27,7 +27,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from pipeline.registry.models import ALIASES, UNKNOWN_SHA256, ModelInfo, get_model
-from pipeline.shared import shared_models_dir
+from pipeline.shared import MODELS_ENV, shared_models_dir
 
 log = logging.getLogger(__name__)
 
@@ -42,20 +42,27 @@ def cache_dir() -> Path:
     return base / "models"
 
 
-def search_dirs(models_dir: Path | str | None = None) -> list[Path]:
-    """The folders ``resolve_model`` looks in, in order."""
-    dirs: list[Path] = []
+def labelled_search_dirs(models_dir: Path | str | None = None) -> list[tuple[str, Path]]:
+    """``(where it comes from, folder)`` for every folder ``resolve_model`` looks in, in order:
+    the explicit folder (``--models-dir`` / ``stage_config.detect2d.models_dir``), the shared
+    models folder when one exists (``pipeline.shared``), the cache. Duplicates are dropped."""
+    dirs: list[tuple[str, Path]] = []
     if models_dir is not None:
-        dirs.append(Path(models_dir).expanduser())
+        dirs.append(("--models-dir", Path(models_dir).expanduser()))
     shared = shared_models_dir()
     if shared is not None:
-        dirs.append(shared)
-    dirs.append(cache_dir())
-    out: list[Path] = []
-    for d in dirs:
-        if d not in out:
-            out.append(d)
+        dirs.append((f"shared models folder (${MODELS_ENV}, else ../shared/models)", shared))
+    dirs.append(("cache ($CORNERMAN_CACHE_DIR/models; downloads go here)", cache_dir()))
+    out: list[tuple[str, Path]] = []
+    for label, d in dirs:
+        if d not in [p for _, p in out]:
+            out.append((label, d))
     return out
+
+
+def search_dirs(models_dir: Path | str | None = None) -> list[Path]:
+    """The folders ``resolve_model`` looks in, in order (``labelled_search_dirs``)."""
+    return [d for _, d in labelled_search_dirs(models_dir)]
 
 
 def candidate_names(info: ModelInfo) -> tuple[str, ...]:
@@ -63,7 +70,9 @@ def candidate_names(info: ModelInfo) -> tuple[str, ...]:
 
 
 def find_model(name: str, models_dir: Path | str | None = None) -> Path | None:
-    """The model file if present in one of ``search_dirs``; ``None`` otherwise."""
+    """The model file if present in one of ``search_dirs``; ``None`` otherwise.
+
+    ``name`` may be any spelling ``get_model`` accepts (``rtmpose-m``)."""
     info = get_model(name)
     for d in search_dirs(models_dir):
         for fn in candidate_names(info):
@@ -75,18 +84,23 @@ def find_model(name: str, models_dir: Path | str | None = None) -> Path | None:
 def resolve_model(name: str, models_dir: Path | str | None = None) -> Path:
     """Path of the model file; ``ValueError`` naming the model, where it looked and how to get it."""
     info = get_model(name)
-    p = find_model(name, models_dir)
+    p = find_model(info.name, models_dir)
     if p is not None:
         return p
     looked = ", ".join(str(d / fn) for d in search_dirs(models_dir) for fn in candidate_names(info))
-    if info.url:
-        how = f"download it with `cornerman models download {name}` (from {info.url})"
-    else:
-        how = f"it is not downloadable: {info.source}"
     raise ValueError(
-        f"model {name!r} not found; looked for {looked}. To get it, {how}, or put {info.filename} in a folder "
-        "given by --models-dir / CORNERMAN_MODELS_DIR."
+        f"model {info.name!r} not found; looked for {looked}. To get it, {how_to_get(info)}, or put "
+        f"{info.filename} in a folder given by --models-dir (session.json: stage_config.detect2d.models_dir) "
+        f"or {MODELS_ENV}."
     )
+
+
+def how_to_get(info: ModelInfo) -> str:
+    """One clause a user can act on: the download command, or why the file cannot be
+    downloaded and what to do instead (the registry's ``source``)."""
+    if info.url:
+        return f"download it with `cornerman models download {info.name}` (from {info.url})"
+    return f"it is not downloadable, place it by hand: {info.source}"
 
 
 def sha256_file(path: Path) -> str:

@@ -123,8 +123,17 @@ ALIASES: dict[str, tuple[str, ...]] = {
 }
 
 
+def canonical_name(name: str) -> str:
+    """The registry spelling of a model name: case, surrounding blanks and ``-`` versus ``_``
+    do not matter (``RTMPose-M`` -> ``rtmpose_m``, the spelling of OpenMMLab's file names).
+    The result need not be a known model (``get_model`` checks that)."""
+    return name.strip().lower().replace("-", "_")
+
+
 def get_model(name: str) -> ModelInfo:
-    """The registry entry; ``ValueError`` listing the known names otherwise."""
-    if name not in MODELS:
+    """The registry entry of ``name`` or one of its spellings (``canonical_name``);
+    ``ValueError`` listing the known names otherwise."""
+    key = canonical_name(name)
+    if key not in MODELS:
         raise ValueError(f"unknown model {name!r}; known models: {', '.join(sorted(MODELS))}")
-    return MODELS[name]
+    return MODELS[key]

@@ -200,3 +200,69 @@ def test_cli_list_and_verify(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) ->
     assert res.exit_code == 1 and "MISMATCH" in res.output
     res = runner.invoke(app, ["download", "blazepose_full", "--models-dir", str(tmp_path)])
     assert res.exit_code == 2 and "not downloadable" in res.output
+
+
+def test_model_names_accept_hyphens_and_any_case(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from pipeline.registry import canonical_name, find_model, get_model
+
+    monkeypatch.setenv("CORNERMAN_MODELS_DIR", str(tmp_path / "shared"))
+    monkeypatch.setenv("CORNERMAN_CACHE_DIR", str(tmp_path / "cache"))
+    assert canonical_name(" RTMPose-M ") == "rtmpose_m"
+    assert get_model("rtmpose-m") is MODELS["rtmpose_m"] and get_model("YOLOX_Nano") is MODELS["yolox_nano"]
+    (tmp_path / "rtmpose_m.onnx").write_bytes(b"x")
+    assert find_model("rtmpose-m", tmp_path) == tmp_path / "rtmpose_m.onnx"
+    assert resolve_model("RTMPOSE-M", tmp_path) == tmp_path / "rtmpose_m.onnx"
+    with pytest.raises(ValueError, match="model 'rtmpose_l' not found.*cornerman models download rtmpose_l"):
+        resolve_model("rtmpose-l", tmp_path)
+    with pytest.raises(ValueError, match="unknown model 'rtm-pose'"):
+        get_model("rtm-pose")
+
+
+def test_cli_download_takes_any_spelling(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from typer.testing import CliRunner
+
+    import pipeline.cli.models as cli_models
+
+    got: list[str] = []
+
+    def fake_download(name: str, models_dir: object, progress: object, force: bool) -> Path:
+        got.append(name)
+        return tmp_path / f"{name}.onnx"
+
+    monkeypatch.setattr(cli_models, "download_model", fake_download)
+    res = CliRunner().invoke(cli_models.app, ["download", "rtmpose-m"])
+    assert res.exit_code == 0, res.output
+    assert got == ["rtmpose_m"] and "rtmpose_m.onnx" in res.output
+    res = CliRunner().invoke(cli_models.app, ["download", "Movenet-Lightning"])
+    assert res.exit_code == 2 and "movenet_lightning is not downloadable" in res.output and got == ["rtmpose_m"]
+
+
+def test_cli_models_explains_what_a_video_session_needs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from typer.testing import CliRunner
+
+    from pipeline.cli.main import app
+    from pipeline.cli.models import session_models
+    from pipeline.stages.detect2d import Detect2DConfig
+
+    shared, cache, mine = tmp_path / "shared", tmp_path / "cache", tmp_path / "mine"
+    shared.mkdir()
+    mine.mkdir()
+    monkeypatch.setenv("CORNERMAN_MODELS_DIR", str(shared))
+    monkeypatch.setenv("CORNERMAN_CACHE_DIR", str(cache))
+    needed = session_models()
+    assert [n for _, n in needed[:2]] == [Detect2DConfig().detector, Detect2DConfig().pose_model]
+    res = CliRunner().invoke(app, ["models", "--models-dir", str(mine)])  # no command: the list
+    assert res.exit_code == 0, res.output
+    out = res.output
+    assert "A video session needs" in out
+    for role, name in needed:
+        line = next(ln for ln in out.splitlines() if f"{role}: {name}" in ln)
+        assert "missing" in line
+        how = f"cornerman models download {name}" if MODELS[name].url else "not downloadable"
+        assert how in line, line
+    for folder, label in ((mine, "--models-dir"), (shared, "shared models folder"), (cache / "models", "cache")):
+        assert any(str(folder) in ln and label in ln for ln in out.splitlines()), (folder, out)
+    detector = needed[0][1]
+    (mine / f"{detector}.onnx").write_bytes(b"x")
+    out = CliRunner().invoke(app, ["models", "list", "--models-dir", str(mine)]).output
+    assert any("found" in ln and str(mine / f"{detector}.onnx") in ln for ln in out.splitlines())
