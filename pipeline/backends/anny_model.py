@@ -22,12 +22,12 @@ import logging
 import os
 from dataclasses import dataclass
 from functools import lru_cache
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from pipeline.backends.anny_cache import anny_cache_dir
 from pipeline.schema.joints import COCO17_FEET
 
 logger = logging.getLogger(__name__)
@@ -52,14 +52,6 @@ _SAFE_TOPOLOGIES = (
     "notoes_collapse5pc",
     "notoes_collapse10pc",
 )
-
-
-def anny_cache_dir() -> Path:
-    """Where anny's built model data is cached (``$ANNY_CACHE_DIR`` wins when set)."""
-    if os.environ.get("ANNY_CACHE_DIR"):
-        return Path(os.environ["ANNY_CACHE_DIR"])
-    base = os.environ.get("CORNERMAN_CACHE_DIR") or str(Path.home() / ".cache" / "cornerman")
-    return Path(base) / "anny"
 
 
 def _import_anny():  # noqa: ANN202 (module type)

@@ -8,7 +8,9 @@ Everything works on ``COCO17_FEET`` keypoints; nothing here knows the body model
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,13 +52,52 @@ def joint_idx(names: tuple[str, ...]) -> list[int]:
     return [COCO17_FEET.index(n) for n in names]
 
 
+ProgressFn = Callable[[float, "float | None", str], None]
+"""``progress(done, total, message)``, the runner's ``StageContext.progress``."""
+
+
+@dataclass
+class _IterationCounter:
+    report: ProgressFn
+    total: int
+    done: int = 0
+
+
+_PROGRESS: ContextVar[_IterationCounter | None] = ContextVar("lbfgs_progress", default=None)
+
+
+def lbfgs_budget(cfg: FitConfig) -> int:
+    """L-BFGS iterations a fit runs at most: the shape pass, then the pose passes
+    (``run_pose_passes``); the progress total."""
+    return cfg.shape_iters + cfg.pose_iters_3d + (cfg.pose_iters if cfg.use_2d else 0)
+
+
+@contextmanager
+def report_lbfgs_progress(progress: ProgressFn | None, cfg: FitConfig) -> Iterator[None]:
+    """While active, every ``run_lbfgs`` iteration calls ``progress(done, total, message)``
+    with the iterations done over the whole fit (``lbfgs_budget``); a pass that converges
+    early counts as its full budget. ``progress`` may raise to stop the fit."""
+    if progress is None:
+        yield
+        return
+    token = _PROGRESS.set(_IterationCounter(progress, max(1, lbfgs_budget(cfg))))
+    try:
+        yield
+    finally:
+        _PROGRESS.reset(token)
+
+
 def run_lbfgs(
     params: list[torch.Tensor], closure: Callable[[], torch.Tensor], iters: int, cfg: FitConfig
 ) -> None:
     """Minimise ``closure()`` over ``params`` in place: L-BFGS with ``cfg``'s history and
-    learning rate, strong Wolfe line search, at most ``iters`` iterations."""
+    learning rate, strong Wolfe line search, at most ``iters`` iterations. Reports each
+    iteration inside ``report_lbfgs_progress``."""
     if iters <= 0:
         return
+    counter = _PROGRESS.get()
+    start = counter.done if counter is not None else 0
+    started = 0
     opt = torch.optim.LBFGS(
         params,
         lr=cfg.lbfgs_lr,
@@ -69,12 +110,22 @@ def run_lbfgs(
     )
 
     def _closure() -> torch.Tensor:
+        nonlocal started
+        if counter is not None:  # torch counts an iteration before its line search evaluates
+            k = int(opt.state[params[0]].get("n_iter", 0))
+            if k > started:
+                started = k
+                done = min(start + k - 1, counter.total)
+                counter.report(done, counter.total, f"L-BFGS iteration {done + 1}/{counter.total}")
         opt.zero_grad()
         loss = closure()
         loss.backward()
         return loss
 
     opt.step(_closure)
+    if counter is not None:
+        counter.done = min(start + iters, counter.total)
+        counter.report(counter.done, counter.total, f"L-BFGS iteration {counter.done}/{counter.total}")
 
 
 Evaluate = Callable[[bool, "torch.Tensor | None"], tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]]

@@ -153,10 +153,14 @@ def run(
     association: Association,
     rig: CameraRig,
     cfg: FitConfig = FitConfig(),
+    progress: Callable[[float, float | None, str], None] | None = None,
 ) -> FitResult:
     """Fit the body model to every person of ``keypoints3d`` (one shape per person, one pose
     and root translation per frame). Raises ``ValueError`` for inconsistent inputs and, for
-    SMPL/SMPL-X, when the ``smplx`` package or the model files are missing."""
+    SMPL/SMPL-X, when the ``smplx`` package or the model files are missing.
+
+    ``progress(done, total, message)``, when given, is called at every L-BFGS iteration
+    (``total``: the iteration budget of the whole fit); it may raise to stop the fit."""
     t_start = time.perf_counter()
     cfg = cfg.at_rate(keypoints3d.fps)
     if cfg.body_model == "anny":
@@ -179,7 +183,7 @@ def run(
     fit_persons = [p for p in range(len(inputs)) if present[:, p].sum() >= 2]
     nf, npers, nj = keypoints3d.n_frames, keypoints3d.n_persons, len(COCO17_FEET)
 
-    from pipeline.backends.fit_common import PersonObservations
+    from pipeline.backends.fit_common import PersonObservations, report_lbfgs_progress
 
     nb = len(bone_names)
     shape = np.tile(shape0, (npers, 1))
@@ -193,7 +197,8 @@ def run(
             PersonObservations(inputs[p].kp3d_m, inputs[p].w3d, inputs[p].uv_px, inputs[p].w2d)
             for p in fit_persons
         ]
-        res = fit_backend(obs, rig.P)
+        with report_lbfgs_progress(progress, cfg):
+            res = fit_backend(obs, rig.P)
         for k, p in enumerate(fit_persons):
             shape[p], pose[:, p], root[:, p], kp[:, p], loss[p] = (
                 res.shape[k],
