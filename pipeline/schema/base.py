@@ -119,6 +119,18 @@ def save_npz(path: str | Path, obj: Any) -> None:
     Path(path).write_bytes(buf.getvalue())
 
 
+def load_npz_scalar(path: str | Path, name: str) -> Any:
+    """One scalar field (``int``, ``float``, ``str``, ``bool``) of an npz written by
+    :func:`save_npz`, without reading its arrays; ``ValueError`` naming the file."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if _SCALAR_PREFIX + name not in z.files:
+                raise ValueError(f"{path}: no scalar field {name!r}")
+            return z[_SCALAR_PREFIX + name].item()
+    except OSError as e:
+        raise ValueError(f"{path}: cannot read npz: {e}") from e
+
+
 def load_npz(path: str | Path, cls: type[T]) -> T:
     """Load a schema dataclass saved by :func:`save_npz`; errors name the file."""
     try:

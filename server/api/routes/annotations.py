@@ -36,13 +36,18 @@ def to_public(a: Annotation) -> AnnotationPublic:
     return AnnotationPublic(**a.model_dump(), active=a.superseded_by is None and a.kind != "undo")
 
 
-def _validated_payload(raw: dict[str, Any]) -> dict[str, Any]:
-    from pipeline.schema.annotations import annotation_from_dict, annotation_to_dict
+def _validated_payload(raw: dict[str, Any], bout: Bout) -> dict[str, Any]:
+    """The edit as stored; 422 with the reason when it is malformed or refers outside the
+    session (frames, persons, cameras: ``pipeline.schema.annotations.check_annotation``)."""
+    from pipeline.runner.annotation_bounds import annotation_bounds
+    from pipeline.schema.annotations import annotation_from_dict, annotation_to_dict, check_annotation
 
     try:
-        return annotation_to_dict(annotation_from_dict(raw))
+        a = annotation_from_dict(raw)
+        check_annotation(a, annotation_bounds(bout_dir(bout)))
     except (TypeError, ValueError) as e:
         raise HTTPException(status_code=422, detail=f"invalid annotation: {e}") from e
+    return annotation_to_dict(a)
 
 
 def _queued_job_covering(db: Session, bout_id: int, stage: str, order: list[str]) -> Job | None:
@@ -92,7 +97,7 @@ def list_annotations(db: SessionDep, _: CurrentUser, session_id: int, include_su
 @router.post("/sessions/{session_id}/annotations", response_model=AnnotationResult, status_code=status.HTTP_201_CREATED)
 def create_annotation(db: SessionDep, user: AnnotatorUser, session_id: int, body: AnnotationCreate) -> Any:
     bout = get_bout_or_404(db, session_id)
-    payload = _validated_payload(body.annotation)
+    payload = _validated_payload(body.annotation, bout)
     row = crud.add_annotation(db, bout_id=session_id, payload=payload, author=user.name)
     return _after_change(db, bout, payload["kind"], body.rerun, user, row, f"annotation #{row.id}")
 
@@ -107,7 +112,7 @@ def replace_annotation(db: SessionDep, user: AnnotatorUser, annotation_id: int, 
     """Replace an active edit: the new row supersedes it (the old one stays in the history)."""
     old = _annotation_or_404(db, annotation_id)
     bout = get_bout_or_404(db, old.session_id)
-    payload = _validated_payload(body.annotation)
+    payload = _validated_payload(body.annotation, bout)
     try:
         row = crud.add_annotation(db, bout_id=old.session_id, payload=payload, author=user.name, supersedes=old)
     except ValueError as e:
