@@ -8,6 +8,9 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import os
+import socket
+import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +23,18 @@ from server.db import init_db, make_engine
 from server.models import Bout, JobCreate, UserCreate
 
 log = logging.getLogger(__name__)
-DEFAULT_USERS: tuple[tuple[str, str], ...] = (("admin", "admin"), ("annotator", "annotator"), ("coach", "coach"))
+DEFAULT_USERS: tuple[tuple[str, str], ...] = (("coach", "coach"), ("annotator", "annotator"), ("admin", "admin"))
+"""(user name, role) created on the first start; also the order the links are printed in."""
+
+ROLE_LABELS: dict[str, str] = {
+    "coach": "watch bouts (read-only)",
+    "annotator": "watch + fix identities and keypoints",
+    "admin": "everything, incl. users and re-runs",
+}
+"""What each role's printed link lets its holder do."""
+
+STARTUP_TIMEOUT_S = 60.0
+"""How long ``serve`` waits for the API to answer before it says it did not start."""
 
 
 def _settings(home: Path | None, export: bool = True) -> Settings:
@@ -122,37 +136,120 @@ def start_workers(settings: Settings, n: int, executor: str = "local", ray_addre
     return procs
 
 
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port that nobody listens on right now (the OS picks it)."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def check_port(host: str, port: int) -> None:
+    """``ValueError`` naming a free alternative when ``host:port`` cannot be bound (another
+    server listens there, or the address is not this machine's); run before any work."""
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except socket.gaierror as e:
+        raise ValueError(f"--host {host}: not an address of this machine ({e})") from e
+    family, _, _, _, addr = infos[0]
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn does: TIME_WAIT is not "busy"
+        try:
+            s.bind(addr)
+        except OSError as e:
+            raise ValueError(
+                f"cannot serve on {host}:{port}: {e.strerror or e} (another `cornerman serve` or demo running?); "
+                f"stop it, or pass --port {free_port(host)} (free now)"
+            ) from e
+
+
+def _local_url(host: str, port: int) -> str:
+    """The URL a browser on this machine uses (a wildcard host is reached via loopback)."""
+    shown = {"0.0.0.0": "127.0.0.1", "::": "[::1]", "": "127.0.0.1"}.get(host, f"[{host}]" if ":" in host else host)
+    return f"http://{shown}:{port}"
+
+
+def _wait_until_up(server: Any, base: str, timeout_s: float) -> bool:
+    """True once uvicorn has started and ``/api/health`` answers 200; False when it gave up."""
+    import urllib.error
+    import urllib.request
+
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end and not server.should_exit:
+        if server.started:
+            try:
+                with urllib.request.urlopen(f"{base}/api/health", timeout=2) as r:
+                    if r.status == 200:
+                        return True
+            except (urllib.error.URLError, OSError):
+                pass
+        time.sleep(0.1)
+    return False
+
+
+def print_links(console: Console, base: str, tokens: dict[str, str], demo_id: int | None) -> None:
+    """One line per role, coach first, each with its sign-in link; then the API docs."""
+    roles = dict(DEFAULT_USERS)
+    for name, _ in DEFAULT_USERS:
+        if name in tokens:
+            console.print(f"  {name:<10} {ROLE_LABELS[roles[name]]:<40} {base}/?token={tokens[name]}", soft_wrap=True)
+    if not tokens:
+        console.print("  sign-in links need a token: existing users were kept; `cornerman serve --print-tokens` "
+                      "issues new ones, `cornerman user create NAME --role coach` adds a user", soft_wrap=True)
+    if demo_id is not None:
+        console.print(f"  demo bout: session {demo_id}, listed on each link's page (\"Open viewer\")", soft_wrap=True)
+    console.print(f"  {'API docs':<10} {'':<40} {base}/docs", soft_wrap=True)
+
+
+def _announce(server: Any, settings: Settings, base: str, fresh_tokens: bool, demo_id: int | None,
+              n_workers: int) -> None:
+    """Issue the tokens and print the links once the API answers (never for a server that
+    did not start)."""
+    console = Console()
+    if not _wait_until_up(server, base, STARTUP_TIMEOUT_S):
+        if not server.should_exit:
+            console.print(f"[yellow]the API at {base} did not answer within {STARTUP_TIMEOUT_S:.0f} s[/]")
+        return
+    tokens = _default_tokens(settings, fresh_tokens)
+    console.print(f"[bold]cornerman server ready[/] at {base} (home {settings.home.resolve()}, "
+                  f"{n_workers} worker(s))", soft_wrap=True)
+    print_links(console, base, tokens, demo_id)
+
+
 def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1, home: Path | None = None,
           demo_session: Path | None = None, open_tokens_print: bool = False) -> None:
     """Run the API (uvicorn) plus ``workers`` worker processes until interrupted.
 
-    Prints the URLs and, on the first start (or with ``open_tokens_print``), fresh tokens
-    for the default users admin / annotator / coach.
+    Checks the port first (``ValueError`` naming a free one when it is taken). Once the API
+    answers, prints one link per role (coach, annotator, admin) with, on the first start
+    (or with ``open_tokens_print``), fresh tokens for those default users. ``ValueError``
+    when uvicorn fails to start.
     """
     import uvicorn
 
     from server.app import create_app
 
+    check_port(host, port)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     settings = _settings(home)
     app = create_app(settings)
-    tokens = _default_tokens(settings, open_tokens_print)
     demo_id = register_demo(settings, demo_session) if demo_session is not None else None
-    console = Console()
-    base = f"http://{host}:{port}"
-    console.print(f"[bold]cornerman server[/bold] home={settings.home.resolve()}")
-    console.print(f"  API      {base}/api   (docs: {base}/docs)")
-    for name, tok in tokens.items():
-        console.print(f"  {name:<10} token {tok}   picker: {base}/?token={tok}", soft_wrap=True)
-    if not tokens:
-        console.print("  tokens: existing users kept; `cornerman serve --print-tokens` or `cornerman user create NAME --role ROLE`")
-    if demo_id is not None:
-        console.print(f"  demo     session id {demo_id}: {base}/?token={tokens.get('annotator', '<annotator token>')}", soft_wrap=True)
+    server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="info"))
     procs = start_workers(settings, workers)
-    console.print(f"  workers  {len(procs)} started (pids {[p.pid for p in procs]})")
+    log.info("workers started (pids %s)", [p.pid for p in procs])
+    threading.Thread(
+        target=_announce, args=(server, settings, _local_url(host, port), open_tokens_print, demo_id, len(procs)),
+        name="cornerman-announce", daemon=True,
+    ).start()
     try:
-        uvicorn.run(app, host=host, port=port, log_level="info")
+        server.run()
+    except SystemExit as e:  # uvicorn exits with 3 when it cannot bind or start the app
+        raise ValueError(f"the API server did not start on {host}:{port} (uvicorn exit code {e.code}; "
+                         "see the log above)") from e
+    except KeyboardInterrupt:  # Ctrl-C: uvicorn has shut down; stop the workers below, no traceback
+        log.info("stopped by Ctrl-C")
     finally:
+        server.should_exit = True
         for p in procs:
             p.terminate()
         for p in procs:

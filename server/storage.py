@@ -116,7 +116,7 @@ def session_meta(session_dir: Path) -> dict[str, Any]:
     from pipeline.schema.session import SessionConfig
 
     cfg = SessionConfig.load(session_dir)
-    cams = list(cfg.videos or cfg.keypoints)
+    cams = list(cfg.cameras) or list(cfg.camera_inputs())
     fps = float(cfg.fps)
     try:
         from pipeline.io.session_rig import session_rig

@@ -92,7 +92,7 @@ class FrameProvider:
         self.videos: dict[int, Path] = {}
         cfg = data.config
         if cfg.source == "video":
-            for name, rel in cfg.videos.items():
+            for name, rel in cfg.camera_inputs().items():  # only the cameras the session uses
                 p = Path(rel)
                 self.videos[self.rig.index(name)] = p if p.is_absolute() else data.session_dir / p
         self._pool: ThreadPoolExecutor | None = None

@@ -72,6 +72,13 @@ def demo(
 ) -> None:
     """Generate the built-in synthetic sparring bout, run every stage, then serve the app."""
     _setup_logging(verbose)
+    if not no_serve:  # a busy port must stop the demo before minutes of compute, not after
+        from server.cli import check_port
+
+        try:
+            check_port(host, port)
+        except ValueError as e:
+            _fail(str(e))
     from pipeline.synthetic import SyntheticConfig, make_demo_session
 
     session = session_dir or (_home() / "sessions" / "demo")
@@ -87,7 +94,10 @@ def demo(
         return
     from server.cli import serve as serve_app
 
-    serve_app(host=host, port=port, workers=1, home=_home(), demo_session=session, open_tokens_print=True)
+    try:
+        serve_app(host=host, port=port, workers=1, home=_home(), demo_session=session, open_tokens_print=True)
+    except ValueError as e:
+        _fail(f"{e} (the computed demo session stays in {session})")
 
 
 @app.command("run")
@@ -103,16 +113,49 @@ def run_cmd(
         Path | None,
         typer.Option("--body-model-path", help="fit: folder with smpl/SMPL_*.pkl or smplx/SMPLX_*.npz (yours)."),
     ] = None,
+    models_dir: Annotated[
+        Path | None,
+        typer.Option("--models-dir", help="detect2d: folder searched first for the ONNX models (saved in session.json)."),
+    ] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
 ) -> None:
     """Run a session's stages, skipping the fresh ones."""
     _setup_logging(verbose)
     try:
+        _check_stage_range(session, from_stage, to_stage)  # before anything is saved
         if body_model is not None or body_model_path is not None:
             _set_fit_body_model(session, body_model, body_model_path)
+        if models_dir is not None:
+            _set_models_dir(session, models_dir)
         _run_with_progress(session, from_stage, to_stage, force)
     except ValueError as e:
         _fail(str(e))
+
+
+def _check_stage_range(session: Path, from_stage: str | None, to_stage: str | None) -> None:
+    """``ValueError`` for an unknown stage or ``--from-stage`` after ``--to-stage``."""
+    from pipeline.runner.core import enabled_stages, stage_range
+    from pipeline.schema.session import SessionConfig
+
+    stage_range(enabled_stages(SessionConfig.load(session)), from_stage, to_stage)
+
+
+def _set_models_dir(session: Path, models_dir: Path) -> None:
+    """Store ``--models-dir`` (absolute) in ``session.json``'s ``stage_config.detect2d.models_dir``."""
+    import dataclasses
+
+    from pipeline.runner.core import resolve_config
+    from pipeline.runner.registry import get_specs
+    from pipeline.schema.session import SessionConfig
+
+    if not models_dir.expanduser().is_dir():
+        raise ValueError(f"--models-dir {models_dir}: not a folder")
+    cfg = SessionConfig.load(session)
+    d2d = {**cfg.stage_config.get("detect2d", {}), "models_dir": str(models_dir.expanduser().resolve())}
+    new = dataclasses.replace(cfg, stage_config={**cfg.stage_config, "detect2d": d2d})
+    resolve_config(get_specs()["detect2d"], new)
+    if new != cfg:
+        new.save(session)
 
 
 def _set_fit_body_model(session: Path, body_model: str | None, body_model_path: Path | None) -> None:
@@ -238,43 +281,31 @@ def new(
     keypoint_format: Annotated[str, typer.Option(help="openpose or coco.")] = "openpose",
     name: Annotated[str, typer.Option(help="Bout name.")] = "",
     fps: Annotated[float, typer.Option(help="Frame rate (0 = from calibration/video).")] = 0.0,
+    cameras: Annotated[
+        str, typer.Option(help="Comma-separated calibrated cameras to use, e.g. cam01,cam03 (default: all).")
+    ] = "",
+    athlete: Annotated[
+        list[str], typer.Option(help="Athlete name, repeated, one per person (sets the person count).")
+    ] = [],  # noqa: B006
+    models_dir: Annotated[
+        Path | None, typer.Option("--models-dir", help="Folder searched first for the ONNX models (video sessions).")
+    ] = None,
 ) -> None:
-    """Create a session folder from videos or 2D keypoints + a calibration."""
-    from pipeline.schema import SessionConfig
-
-    def pairs(items: list[str], what: str) -> dict[str, str]:
-        out = {}
-        for it in items:
-            if "=" not in it:
-                raise ValueError(f"--{what} expects CAM=PATH, got {it!r}")
-            cam, p = it.split("=", 1)
-            if not Path(p).exists():
-                raise ValueError(f"--{what} {cam}: {p} does not exist")
-            out[cam] = str(Path(p).resolve())
-        return out
+    """Create a session folder from videos or 2D keypoints + a calibration (every input is checked first)."""
+    from pipeline.cli.new_session import plan_new_session, print_summary
 
     try:
-        if not calibration.exists():
-            raise ValueError(f"{calibration}: calibration not found")
-        vids, kps = pairs(video, "video"), pairs(keypoints, "keypoints")
-        if bool(vids) == bool(kps):
-            raise ValueError("give either --video CAM=PATH ... or --keypoints CAM=PATH ..., not both or neither")
-        cfg = SessionConfig(
-            name=name or session.name,
-            source="video" if vids else "keypoints",
-            calibration=str(calibration.resolve()),
-            videos=vids,
-            keypoints=kps,
-            keypoint_format=keypoint_format,  # type: ignore[arg-type]
-            fps=fps,
-        )
-        session.mkdir(parents=True, exist_ok=True)
-        if (session / "session.json").exists():
-            raise ValueError(f"{session}/session.json exists already; choose another folder")
-        cfg.save(session)
+        with console.status("checking the calibration and the inputs"):
+            plan = plan_new_session(
+                session, calibration, video, keypoints, keypoint_format, name, fps, cameras, athlete, models_dir
+            )
     except ValueError as e:
         _fail(str(e))
-    console.print(f"created {session}; run it with `cornerman run {session}`")
+        return
+    session.mkdir(parents=True, exist_ok=True)
+    plan.config.save(session)
+    print_summary(console, plan)
+    console.print(f"created {session}; run it with `cornerman run {session}`", soft_wrap=True)
 
 
 def _parse_opt(items: list[str]) -> dict[str, Any]:
@@ -347,7 +378,11 @@ def serve(
     _setup_logging(verbose)
     from server.cli import serve as serve_app
 
-    serve_app(host=host, port=port, workers=workers, home=home or _home(), demo_session=None, open_tokens_print=print_tokens)
+    try:
+        serve_app(host=host, port=port, workers=workers, home=home or _home(), demo_session=None,
+                  open_tokens_print=print_tokens)
+    except ValueError as e:
+        _fail(str(e))
 
 
 user_app = typer.Typer(help="Server users and API tokens.", no_args_is_help=True)
@@ -421,7 +456,7 @@ def _mount_subapps() -> None:
         from pipeline.cli.models import app as models_app
     except ModuleNotFoundError:
         return
-    app.add_typer(models_app, name="models", help="Model registry: list, download, verify.")
+    app.add_typer(models_app, name="models", help="Model registry: list (the default: which models a session needs, where they are looked up, how to get them), download, verify.")
 
 
 _mount_subapps()

@@ -55,8 +55,11 @@ def _read_cameras(
         )
     missing = [c for c in rig.names if c not in paths]
     if missing and not allow_missing_cameras:
+        given = [c for c in rig.names if c in paths]
         raise ValueError(
-            f"calibration camera(s) {missing} have no keypoints (pass allow_missing_cameras=True to accept)"
+            f"calibration camera(s) {missing} have no keypoints; give them with --keypoints CAM=PATH "
+            f'(session.json "keypoints"), or leave them out with --cameras {",".join(given)} '
+            '(session.json "cameras")'
         )
     if fmt not in ("openpose", "coco"):
         raise ValueError(f"keypoint format must be 'openpose' or 'coco', got {fmt!r}")
@@ -79,6 +82,8 @@ def _read_cameras(
             out[cam] = read_openpose_folder(p, openpose_skeleton, frame_from)
         else:
             out[cam] = read_coco_file(p)
+        if not out[cam].frame_keys:
+            raise ValueError(f"{p}: {kind} for camera {cam!r} holds no frames (no images and no annotations)")
     return out
 
 
@@ -93,7 +98,7 @@ def _align_frames(cams: dict[str, CameraRows], pad_frames: bool) -> tuple[int, i
             raise ValueError(
                 f"camera {c!r} ({cams[c].source}) has {len(s)} frames but camera {ref_cam!r} "
                 f"({cams[ref_cam].source}) has {len(sets[ref_cam])}; frames only in {ref_cam!r}: {only_ref}, "
-                f"only in {c!r}: {only_c} (pass pad_frames=True to accept)"
+                f"only in {c!r}: {only_c}; every camera's keypoints must cover the same frames"
             )
     lo = min(min(s) for s in sets.values())
     hi = max(max(s) for s in sets.values())

@@ -11,6 +11,7 @@ from typing import Any, Literal
 
 from pipeline import __version__
 from pipeline.artifacts import ArtifactStore, FileHashCache, Manifest, config_hash
+from pipeline.io.session_rig import calibration_path, check_multiview, session_rig
 from pipeline.runner.registry import STAGE_ORDER, get_specs
 from pipeline.runner.spec import NullProgress, StageContext, StageSpec
 from pipeline.schema.annotations import annotations_for, annotations_hash, load_annotations
@@ -20,6 +21,9 @@ from pipeline.schema.session import SessionConfig
 log = logging.getLogger(__name__)
 
 StageStatus = Literal["fresh", "stale", "missing"]
+
+FIRST_MULTIVIEW_STAGE = "associate"
+"""The first stage that needs two or more cameras; a run reaching it checks the rig up front."""
 
 
 @dataclass(frozen=True)
@@ -65,7 +69,8 @@ def _deps_in_use(spec: StageSpec, enabled: list[str]) -> list[str]:
 
 
 def fingerprint(ctx: StageContext, spec: StageSpec, cfg: Any, enabled: list[str], hashes: FileHashCache) -> dict[str, str]:
-    """Input hashes of a stage: upstream outputs, input files, consumed annotations."""
+    """Input hashes of a stage: upstream outputs, input files, consumed annotations, and the
+    session's camera selection when it has one."""
     inputs: dict[str, str] = {}
     for dep in _deps_in_use(spec, enabled):
         m = ctx.store.manifest(dep)
@@ -78,6 +83,8 @@ def fingerprint(ctx: StageContext, spec: StageSpec, cfg: Any, enabled: list[str]
         inputs[f"file:{rel}"] = hashes.sha256(p)
     if spec.uses_rig_fps:
         inputs["rig_fps"] = repr(float(ctx.rig.fps))
+    if ctx.session.cameras:  # which cameras, in which order, defines the views of every stage
+        inputs["cameras"] = ",".join(ctx.session.cameras)
     if spec.consumes_annotations:
         inputs["annotations"] = annotations_hash(annotations_for(ctx.all_annotations, spec.name))
     return inputs
@@ -122,6 +129,23 @@ def first_stale_stage(session_dir: Path) -> str | None:
     return None
 
 
+def stage_range(enabled: list[str], from_stage: str | None, to_stage: str | None) -> tuple[int, int]:
+    """Indices into ``enabled`` of the first forced stage (``len(enabled)``: none) and of the
+    last stage to run. ``ValueError`` for a stage that is not enabled, or a ``from_stage``
+    after ``to_stage`` (nothing would run)."""
+    for s, label in ((from_stage, "from-stage"), (to_stage, "to-stage")):
+        if s is not None and s not in enabled:
+            raise ValueError(f"{label} {s!r} is not an enabled stage of this session: {enabled}")
+    last = enabled.index(to_stage) if to_stage else len(enabled) - 1
+    first_forced = enabled.index(from_stage) if from_stage else len(enabled)
+    if from_stage is not None and first_forced > last:
+        raise ValueError(
+            f"from-stage {from_stage!r} comes after to-stage {to_stage!r} in this session's stage order "
+            f"{enabled}: nothing would run (swap them?)"
+        )
+    return first_forced, last
+
+
 def run(
     session_dir: str | Path,
     from_stage: str | None = None,
@@ -142,12 +166,11 @@ def run(
     specs = get_specs()
     enabled = enabled_stages(session)
     sink = progress or NullProgress()
-    for s, label in ((from_stage, "from_stage"), (to_stage, "to_stage")):
-        if s is not None and s not in enabled:
-            raise ValueError(f"{label}={s!r} is not an enabled stage of this session: {enabled}")
+    first_forced, last = stage_range(enabled, from_stage, to_stage)
     load_annotations(session_dir / "annotations.json")  # fail early on a malformed overlay
-    last = enabled.index(to_stage) if to_stage else len(enabled) - 1
-    first_forced = enabled.index(from_stage) if from_stage else len(enabled)
+    if any(STAGE_ORDER.index(s) >= STAGE_ORDER.index(FIRST_MULTIVIEW_STAGE) for s in enabled[: last + 1]):
+        # one camera: say so now, not after the 2D stages have run
+        check_multiview(session_rig(session_dir, session), str(calibration_path(session_dir, session)))
     # Every config up to ``to_stage`` first: a bad value in a late stage must not surface
     # only after the early stages have run.
     cfgs = {name: resolve_config(specs[name], session) for name in enabled[: last + 1]}

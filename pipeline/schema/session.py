@@ -37,7 +37,11 @@ class SessionConfig:
             (``person_of_det``, aligned with the input tracks) and foot contacts
             (``foot_contact``: frames x persons x 2 bool), for evaluation.
         fps: frame rate; overrides the calibration's when set (> 0).
-        athletes: display names of the athletes, by global person id order.
+        cameras: the calibration's cameras this session uses, in this order (``()`` = all of
+            them; at least 2 otherwise, since a 3D reconstruction needs two views). Inputs of
+            the other cameras are kept in ``videos``/``keypoints`` but not read.
+        athletes: display names of the athletes, by global person id order; with the default
+            ``stage_config.associate.n_persons = "athletes"`` their number is the person count.
         stage_config: per-stage config overrides, ``{"triangulate": {"min_views": 2}}``.
         stages: stages to run (default: every stage the runner knows).
         auto_rerun: when an annotation is written, re-run the stale stages.
@@ -53,6 +57,7 @@ class SessionConfig:
     ground_truth: str = ""
     ground_truth_labels: str = ""
     fps: float = 0.0
+    cameras: tuple[str, ...] = ()
     athletes: tuple[str, ...] = ("Red", "Blue")
     stage_config: dict[str, dict[str, Any]] = field(default_factory=dict)
     stages: tuple[str, ...] = ()
@@ -73,15 +78,32 @@ class SessionConfig:
             raise ValueError(f"session.keypoint_format must be openpose/coco, got {self.keypoint_format!r}")
         if self.fps < 0:
             raise ValueError(f"session.fps must be >= 0, got {self.fps}")
+        if any(not isinstance(c, str) or not c for c in self.cameras):
+            raise ValueError(f"session.cameras must be camera names, got {list(self.cameras)}")
+        dup = sorted({c for c in self.cameras if self.cameras.count(c) > 1})
+        if dup:
+            raise ValueError(f"session.cameras lists {dup} more than once")
+        if len(self.cameras) == 1:
+            raise ValueError(
+                f"session.cameras (--cameras) lists one camera {list(self.cameras)}; a 3D reconstruction needs >= 2 views "
+                "(list at least two, or none for every calibrated camera)"
+            )
         if not isinstance(self.stage_config, dict):
             raise ValueError(
                 "session.stage_config must be an object of per-stage settings "
                 f'({{"triangulate": {{"min_views": 2}}}}), got {type(self.stage_config).__name__}'
             )
 
+    def camera_inputs(self) -> dict[str, str]:
+        """Camera name -> input path of the ``videos`` or ``keypoints`` source, restricted to
+        ``cameras`` when set (``{}`` for ``source="tracks"``)."""
+        inputs = self.videos if self.source == "video" else self.keypoints if self.source == "keypoints" else {}
+        return {c: p for c, p in inputs.items() if not self.cameras or c in self.cameras}
+
     def to_json(self) -> str:
         d = asdict(self)
         d["athletes"] = list(self.athletes)
+        d["cameras"] = list(self.cameras)
         d["stages"] = list(self.stages)
         return json.dumps(d, indent=2, sort_keys=True)
 
@@ -94,8 +116,10 @@ class SessionConfig:
         if extra:
             raise ValueError(f"{where}: unknown keys {sorted(extra)}; known: {sorted(known)}")
         kw = dict(d)
-        for k in ("athletes", "stages"):
+        for k in ("athletes", "cameras", "stages"):
             if k in kw:
+                if not isinstance(kw[k], list | tuple):
+                    raise ValueError(f"{where}: {k!r} must be a list, got {type(kw[k]).__name__}")
                 kw[k] = tuple(kw[k])
         try:
             return cls(**kw)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli.main import app
@@ -75,3 +77,71 @@ def test_export_calibration_and_bad_out_paths(tmp_path: Path) -> None:
         r = runner.invoke(app, ["export", str(s), "--out", str(bad)])
         assert r.exit_code == 2 and why in r.output
     assert not list(tmp_path.glob("*.tmp")) and not (tmp_path / "missing").exists()
+
+
+def _artifacts(session: Path) -> list[Path]:
+    return sorted((session / "artifacts").glob("*/manifest.json")) if (session / "artifacts").exists() else []
+
+
+def test_run_refuses_a_reversed_stage_range_before_any_work(tmp_path: Path) -> None:
+    s = write_tiny_session(tmp_path / "s", stages=("detect2d", "track", "associate", "triangulate"))
+    r = runner.invoke(app, ["run", str(s), "--from-stage", "triangulate", "--to-stage", "track"])
+    assert r.exit_code == 2, r.output
+    assert "from-stage 'triangulate' comes after to-stage 'track'" in r.output and "Traceback" not in r.output
+    assert _artifacts(s) == []
+    from pipeline.runner import run
+
+    with pytest.raises(ValueError, match="nothing would run"):
+        run(s, from_stage="triangulate", to_stage="track")
+
+
+def test_run_with_one_camera_fails_before_the_2d_stages(tmp_path: Path) -> None:
+    from pipeline.io.calibration import save_toml
+    from tests.conftest import make_rig
+
+    s = write_tiny_session(tmp_path / "s", stages=("detect2d", "track", "associate", "triangulate"))
+    save_toml(make_rig(1), s / "inputs" / "calibration.toml")
+    r = runner.invoke(app, ["run", str(s)])
+    assert r.exit_code == 2, r.output
+    assert "a 3D reconstruction needs >= 2 views" in r.output and "--cameras" in r.output
+    assert _artifacts(s) == []
+
+
+def test_run_stores_models_dir_in_session_json(tmp_path: Path) -> None:
+    s = write_tiny_session(tmp_path / "s", stages=("detect2d",))
+    before = (s / "session.json").read_text()
+    r = runner.invoke(app, ["run", str(s), "--models-dir", str(tmp_path / "missing")])
+    assert r.exit_code == 2 and "--models-dir" in r.output and "not a folder" in r.output
+    assert (s / "session.json").read_text() == before
+    models = tmp_path / "models"
+    models.mkdir()
+    r = runner.invoke(app, ["run", str(s), "--models-dir", str(models)])
+    assert r.exit_code == 0, r.output
+    d = json.loads((s / "session.json").read_text())
+    assert d["stage_config"]["detect2d"]["models_dir"] == str(models.resolve())
+
+
+def test_a_tracks_session_can_use_a_subset_of_the_cameras(tmp_path: Path) -> None:
+    import dataclasses
+
+    from pipeline.artifacts import ArtifactStore
+    from pipeline.schema import Detections2D, SessionConfig
+
+    s = write_tiny_session(tmp_path / "s", stages=("detect2d", "track", "associate", "triangulate"))
+    cfg = SessionConfig.load(s)
+    dataclasses.replace(cfg, cameras=("cam3", "cam1")).save(s)
+    r = runner.invoke(app, ["run", str(s)])
+    assert r.exit_code == 0, r.output
+    dets = ArtifactStore(s).load("detect2d", "detections", Detections2D)
+    assert dets.n_views == 2 and set(np.unique(dets.view)) == {0, 1}
+    # same number of rows per kept camera as the tracks file has for cam3 and cam1
+    from pipeline.schema import Tracks2D, load_npz
+
+    full = load_npz(s / "inputs" / "tracks2d.npz", Tracks2D)
+    assert (dets.view == 0).sum() == (full.view == 2).sum() and (dets.view == 1).sum() == (full.view == 0).sum()
+    # another selection (even another order) makes every stage stale
+    from pipeline.runner import stage_status
+
+    assert set(stage_status(s).values()) == {"fresh"}
+    dataclasses.replace(cfg, cameras=("cam1", "cam3")).save(s)
+    assert set(stage_status(s).values()) == {"stale"}

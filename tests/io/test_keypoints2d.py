@@ -295,3 +295,20 @@ def test_coco_bad_inputs(rig2: CameraRig, tmp_path: Path) -> None:
     fails({"annotations": []}, r"c\.json: a COCO file needs 'images' and 'annotations'")
     with pytest.raises(ValueError, match=r"nope\.json: COCO keypoint file for camera 'cam_01' not found"):
         load_keypoints({"cam_01": tmp_path / "nope.json", "cam_02": COCO_FILE}, "coco", rig2)
+
+
+def test_a_camera_without_keypoints_names_the_cli_options(rig2: CameraRig) -> None:
+    rig3 = load_calibration(DATA / "pose2sim" / "Calib_qualisys.toml").subset([0, 1, 2])
+    with pytest.raises(ValueError) as e:
+        load_keypoints(op_paths(), "openpose", rig3)
+    msg = str(e.value)
+    assert rig3.names[2] in msg and "--keypoints CAM=PATH" in msg and "--cameras cam_01,cam_02" in msg
+    assert "allow_missing_cameras" not in msg
+
+
+@pytest.mark.parametrize("doc", [{"images": [], "annotations": []}, []])
+def test_an_empty_coco_file_is_named(tmp_path: Path, rig2: CameraRig, doc: object) -> None:
+    empty = tmp_path / "empty.json"
+    empty.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=r"empty\.json: COCO keypoint file for camera 'cam_02' holds no frames"):
+        load_keypoints({"cam_01": COCO_FILE, "cam_02": empty}, "coco", rig2)

@@ -3,6 +3,7 @@ videos' (Qualisys, EasyMocap and JSON calibrations store none), else 30 fps."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -67,3 +68,28 @@ def test_the_pipeline_runs_the_pose2sim_videos_at_their_60_fps(tmp_path: Path, t
     cfg.save(tmp_path)
     ctx = StageContext(session_dir=tmp_path, session=cfg, store=ArtifactStore(tmp_path), stage="detect2d")
     assert ctx.rig.fps == pytest.approx(60.0, rel=1e-3)
+
+
+def test_session_cameras_select_and_order_a_subset(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    full = load_calibration(QCA)
+    # the rate comes from the selected cameras' videos only (the unused one disagrees)
+    videos = {n: _video(tmp_path / f"{n}.avi", r) for n, r in zip(full.names[:3], (60.0, 25.0, 60.0), strict=True)}
+    cfg = SessionConfig(name="s", source="video", calibration=str(QCA), videos=videos)
+    want = (full.names[2], full.names[0])
+    rig = session_rig(tmp_path, replace(cfg, cameras=want))
+    assert rig.names == want and np.allclose(rig.K[0], full.K[2]) and rig.fps == pytest.approx(60.0)
+    with pytest.raises(ValueError) as e:
+        session_rig(tmp_path, replace(cfg, cameras=(full.names[0], "nope")))
+    assert "'nope'" in str(e.value) and str(QCA) in str(e.value) and all(n in str(e.value) for n in full.names)
+
+
+def test_session_cameras_must_be_two_or_more_distinct_names() -> None:
+    base = {"name": "s", "source": "tracks", "calibration": "c.toml", "tracks": "t.npz"}
+    with pytest.raises(ValueError, match=">= 2 views"):
+        SessionConfig(**base, cameras=("cam1",))  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="more than once"):
+        SessionConfig(**base, cameras=("cam1", "cam1"))  # type: ignore[arg-type]
+    cfg = SessionConfig.from_dict({**base, "cameras": ["cam2", "cam1"]})
+    assert cfg.cameras == ("cam2", "cam1") and SessionConfig.from_dict(json.loads(cfg.to_json())) == cfg

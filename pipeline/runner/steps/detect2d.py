@@ -28,17 +28,36 @@ def _input_files(ctx: StageContext) -> list[Path]:
     files = [ctx.resolve(s.calibration)]
     if s.source == "tracks":
         files.append(ctx.resolve(s.tracks))
-    elif s.source == "keypoints":
-        files += [ctx.resolve(p) for p in s.keypoints.values()]
-    else:
-        files += [ctx.resolve(p) for p in s.videos.values()]
+    else:  # the videos or keypoints of the cameras the session uses
+        files += [ctx.resolve(p) for p in s.camera_inputs().values()]
     return files
+
+
+def _tracks_of_session_cameras(ctx: StageContext, tracks: Tracks2D) -> Tracks2D:
+    """The rows of the cameras ``session.cameras`` keeps, their views renumbered to the rig's
+    order (a tracks file's views follow the full calibration's camera order)."""
+    from pipeline.io.calibration import load_calibration
+
+    full = load_calibration(ctx.resolve(ctx.session.calibration)).names
+    if tracks.n_views != len(full):
+        raise ValueError(
+            f"{ctx.resolve(ctx.session.tracks)}: tracks have {tracks.n_views} views but the calibration has {len(full)}"
+        )
+    new_view = np.full(len(full), -1, np.int64)
+    for i, name in enumerate(ctx.rig.names):
+        new_view[full.index(name)] = i
+    keep = new_view[tracks.view] >= 0
+    fields = dict(tracks.select(keep).__dict__)
+    fields.update(n_views=ctx.rig.n_views, view=new_view[fields["view"]])
+    return Tracks2D(**fields)
 
 
 def _execute(ctx: StageContext, cfg: Detect2DConfig) -> dict[str, Any]:
     s = ctx.session
     if s.source == "tracks":
         tracks = load_npz(ctx.resolve(s.tracks), Tracks2D)
+        if s.cameras:
+            tracks = _tracks_of_session_cameras(ctx, tracks)
         if tracks.n_views != ctx.rig.n_views:
             raise ValueError(
                 f"{ctx.resolve(s.tracks)}: tracks have {tracks.n_views} views but the calibration has {ctx.rig.n_views}"
@@ -48,7 +67,9 @@ def _execute(ctx: StageContext, cfg: Detect2DConfig) -> dict[str, Any]:
     elif s.source == "keypoints":
         from pipeline.io.keypoints2d import load_keypoints_with_ids
 
-        dets, ids = load_keypoints_with_ids({k: ctx.resolve(v) for k, v in s.keypoints.items()}, s.keypoint_format, ctx.rig)
+        dets, ids = load_keypoints_with_ids(
+            {k: ctx.resolve(v) for k, v in s.camera_inputs().items()}, s.keypoint_format, ctx.rig
+        )
         out = {"detections": dets}
         if ids is not None and np.all(ids >= 0):
             # Tracked keypoints (OpenPose person_id / COCO track_id): keep their ids.
@@ -57,7 +78,7 @@ def _execute(ctx: StageContext, cfg: Detect2DConfig) -> dict[str, Any]:
         from pipeline.stages.detect2d import run_videos
 
         vcfg = replace(cfg, models_dir=str(ctx.resolve(cfg.models_dir)) if cfg.models_dir else None)
-        dets = run_videos({k: ctx.resolve(v) for k, v in s.videos.items()}, ctx.rig, ctx.progress, vcfg)
+        dets = run_videos({k: ctx.resolve(v) for k, v in s.camera_inputs().items()}, ctx.rig, ctx.progress, vcfg)
         out = {"detections": dets}
     if cfg.min_keypoint_conf > 0:
         low = dets.keypoint_conf < cfg.min_keypoint_conf
