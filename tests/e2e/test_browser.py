@@ -24,7 +24,7 @@ import httpx
 import numpy as np
 import pytest
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.timeout(600)]  # slow: ~50 s of the fast tier
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [

@@ -14,7 +14,7 @@ from server.cli import create_user
 from server.demo import make_session
 from server.loadtest import running_server
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]  # slow: kept out of the 3-minute fast tier
 
 
 def test_killed_worker_job_is_requeued_and_resumes(tmp_path: Path) -> None:

@@ -6,7 +6,7 @@ import pytest
 
 from server.loadtest import run_bench
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]  # slow: kept out of the 3-minute fast tier
 
 
 def test_load_nothing_lost_nothing_twice_db_consistent() -> None:
