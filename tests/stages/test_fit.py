@@ -106,13 +106,20 @@ def test_robust_loss_ignores_an_outlier_view(motion: AnnyMotion) -> None:
     kp[bad] += np.array([90.0, -60.0])  # a whole view shifted: e.g. a wrong calibration
     shifted = Tracks2D(**{**tracks.__dict__, "keypoints_px": kp})
     errors = {}
-    for name, trk, robust in (("clean", tracks, "gm"), ("gm", shifted, "gm"), ("l2", shifted, "l2")):
-        cfg = FitConfig(robust_2d=robust, gm_sigma_px=20.0)
+    # The kernel alone (the whole-view rejection off), then with it (the default).
+    for name, trk, robust, frac in (
+        ("clean", tracks, "gm", 0.0),
+        ("gm", shifted, "gm", 0.0),
+        ("l2", shifted, "l2", 0.0),
+        ("l2 + view rejection", shifted, "l2", FitConfig().outlier_view_frac),
+    ):
+        cfg = FitConfig(robust_2d=robust, gm_sigma_px=20.0, outlier_view_frac=frac)
         res = run(kp3d, trk, assoc, rig, cfg)
         errors[name] = float(np.linalg.norm(res.keypoints3d.xyz_m[:, 0] - motion.keypoints_m, axis=-1).mean())
     assert errors["clean"] < 0.01
     assert errors["gm"] < errors["clean"] + 0.003  # the bad view is (nearly) ignored
     assert errors["l2"] > 5 * errors["gm"]  # a plain squared loss is dragged by it
+    assert errors["l2 + view rejection"] < errors["clean"] + 0.003  # ... unless the view is rejected
 
 
 def test_gather_inputs_maps_views_persons_and_threshold(motion: AnnyMotion) -> None:
