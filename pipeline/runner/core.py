@@ -12,6 +12,7 @@ from typing import Any, Literal
 from pipeline import __version__
 from pipeline.artifacts import ArtifactStore, FileHashCache, Manifest, config_hash
 from pipeline.io.session_rig import calibration_path, check_multiview, session_rig
+from pipeline.runner.code_version import stage_code_hash
 from pipeline.runner.registry import STAGE_ORDER, get_specs
 from pipeline.runner.spec import NullProgress, StageContext, StageSpec
 from pipeline.schema.annotations import annotations_for, annotations_hash, load_annotations
@@ -91,7 +92,9 @@ def fingerprint(ctx: StageContext, spec: StageSpec, cfg: Any, enabled: list[str]
 
 
 def _code_version(spec: StageSpec) -> str:
-    return f"cornerman {__version__} / {spec.name} v{spec.version}"
+    """The stage's code version: a hash of the code of every module it can run
+    (``pipeline.runner.code_version``), so a code change makes its artifacts stale."""
+    return f"cornerman {__version__} / {spec.name} {stage_code_hash(spec.name)}"
 
 
 def stage_status(session_dir: Path) -> dict[str, StageStatus]:

@@ -106,7 +106,6 @@ class StageSpec:
         execute: ``(ctx, cfg) -> {output_name: object}`` (see ``ArtifactStore.write``).
         input_files: ``ctx -> [paths]`` of session inputs hashed into the manifest.
         optional_deps: upstream stages used when enabled and present.
-        version: bump when the stage's code changes its output.
         consumes_annotations: whether annotation edits are part of its inputs.
         uses_rig_fps: whether the session's resolved frame rate is part of its inputs (it
             can change without any file changing: ``pipeline.io.session_rig``).
@@ -118,7 +117,6 @@ class StageSpec:
     execute: Callable[[StageContext, Any], dict[str, Any]]
     input_files: Callable[[StageContext], list[Path]] = lambda ctx: []
     optional_deps: tuple[str, ...] = ()
-    version: str = "1"
     consumes_annotations: bool = False
     uses_rig_fps: bool = False
     description: str = ""

@@ -23,6 +23,5 @@ SPEC = StageSpec(
     deps=("fit",),
     config_cls=PhysicsConfig,
     execute=_execute,
-    version="1",
     description="per-athlete MuJoCo humanoids + multi-person iLQR (removes penetration, foot skating)",
 )

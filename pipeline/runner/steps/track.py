@@ -111,6 +111,5 @@ SPEC = StageSpec(
     execute=_execute,
     consumes_annotations=True,
     uses_rig_fps=True,
-    version="2",
     description="per-view tracking with persistent ids, camera time offsets (+ human track edits)",
 )
