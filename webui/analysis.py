@@ -145,7 +145,7 @@ def compute_series(data: SessionData, source: str) -> PlotSeries | None:
     dist = np.full(n, np.nan)
     if kp.n_persons >= 2:
         dist = np.linalg.norm(hips[:, 0, :2] - hips[:, 1, :2], axis=-1)
-    tri = data.keypoints.get("triangulated")
+    tri = data.keypoints.get("filtered")
     reproj = np.full((n, kp.n_persons), np.nan)
     if tri is not None:
         e = per_frame_reproj_error(tri, n)

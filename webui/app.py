@@ -144,10 +144,10 @@ class ViewerApp:
         return 0.0, 0.0
 
     def _default_source(self) -> str:
-        for s in ("physics", "fitted", "triangulated"):
+        for s in ("physics", "fit", "filtered"):
             if s in self.data.keypoints:
                 return s
-        return "triangulated"
+        return "filtered"
 
     def _attach_heavy(self, previous: SessionData | None = None) -> None:
         """Body meshes (torch, background thread) and physics geoms (mujoco), when present.

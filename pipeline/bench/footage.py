@@ -29,6 +29,7 @@ import numpy as np
 
 from pipeline.evaluate.consistency import MIN_KEYPOINT_CONF, consistency
 from pipeline.schema.session import SessionConfig
+from pipeline.schema.sources import RESULT_ARTIFACTS
 
 log = logging.getLogger(__name__)
 
@@ -36,13 +37,8 @@ DATASET = "pose2sim_multiperson"
 SESSION_NAME = "pose2sim_multiperson (bench footage)"
 """The ``name`` of the bench's session: a folder holding another session is never reused or wiped."""
 
-OUTPUTS: tuple[tuple[str, str, str], ...] = (
-    ("raw", "triangulate", "raw"),
-    ("filtered", "triangulate", "keypoints3d"),
-    ("fit", "fit", "keypoints3d"),
-    ("physics", "physics", "keypoints3d"),
-)
-"""(row name, stage, artifact) of every 3D output scored, in pipeline order."""
+OUTPUTS: tuple[tuple[str, str, str], ...] = tuple((name, st, art) for name, (st, art) in RESULT_ARTIFACTS.items())
+"""(row name, stage, artifact) of every 3D output scored, in pipeline order (``pipeline.schema.sources``)."""
 
 FLAG_KINDS: tuple[str, ...] = ("identity_low", "reprojection_high", "penetration_high")
 """The columns of the evaluate stage's ``problems.npz`` ``flags`` (``ProblemFlags``)."""

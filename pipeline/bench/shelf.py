@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.evaluate.shelf import ShelfScore, load_ground_truth, score_shelf
+from pipeline.schema.sources import RESULT_ARTIFACTS
 
 log = logging.getLogger(__name__)
 
@@ -30,8 +31,8 @@ ATHLETES: tuple[str, ...] = ("Actor 0", "Actor 1", "Actor 2")
 CAMERAS: tuple[str, ...] = ("cam0", "cam1", "cam2", "cam3", "cam4")
 FPS = 25.0
 
-OUTPUTS: tuple[tuple[str, str], ...] = (("filtered", "triangulate"), ("fit", "fit"), ("physics", "physics"))
-"""(output name, stage): the scored results, each ``<stage>/keypoints3d.npz``."""
+OUTPUTS: tuple[tuple[str, str], ...] = tuple((n, RESULT_ARTIFACTS[n][0]) for n in ("filtered", "fit", "physics"))
+"""(output name, stage): the scored results, each ``<stage>/keypoints3d.npz`` (``pipeline.schema.sources``)."""
 
 PART_GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("head", ("head",)),

@@ -101,7 +101,7 @@ def _keypoints(X: np.ndarray, ok: np.ndarray, like: Keypoints3D) -> Keypoints3D:
         confidence=ok.astype(float),
         n_views=np.zeros(ok.shape, np.int64),
         reproj_err_px=np.full(ok.shape, np.nan),
-        source="triangulation",
+        source="raw",
     )
 
 

@@ -31,18 +31,12 @@ import numpy as np
 
 from pipeline.schema.base import to_arrays
 from pipeline.schema.keypoints3d import Keypoints3D
+from pipeline.schema.sources import RESULT_ARTIFACTS
 
 ExportFormat = Literal["json", "npz"]
 JSON_FORMAT_ID = "cornerman.keypoints3d/v1"
 
-KEYPOINTS3D_ARTIFACTS: dict[str, tuple[str, str]] = {
-    "raw": ("triangulate", "raw"),
-    "triangulation": ("triangulate", "raw"),
-    "filtered": ("triangulate", "keypoints3d"),
-    "fit": ("fit", "keypoints3d"),
-    "physics": ("physics", "keypoints3d"),
-}
-"""3D result name -> (stage, artifact) holding its ``Keypoints3D``."""
+KEYPOINTS3D_ARTIFACTS = RESULT_ARTIFACTS
 
 SOURCE_ORDER: dict[str, tuple[str, ...]] = {
     # The most accurate result available. Physics is left out until it tracks the
@@ -51,7 +45,7 @@ SOURCE_ORDER: dict[str, tuple[str, ...]] = {
     # The last stage that produced keypoints.
     "latest": ("physics", "fit", "filtered"),
 }
-KeypointSource = Literal["best", "latest", "raw", "triangulation", "filtered", "fit", "physics"]
+KeypointSource = Literal["best", "latest", "raw", "filtered", "fit", "physics"]
 
 
 def find_keypoints3d(session_dir: Path, source: str = "best") -> tuple[Keypoints3D, str]:

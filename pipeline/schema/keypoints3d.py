@@ -9,8 +9,11 @@ import numpy as np
 
 from pipeline.schema.base import check_array, check_finite_where
 
-Keypoints3DSource = Literal["triangulation", "filtered", "fit", "physics", "gt"]
-SOURCES: tuple[str, ...] = ("triangulation", "filtered", "fit", "physics", "gt")
+Keypoints3DSource = Literal["raw", "filtered", "fit", "physics", "gt"]
+SOURCES: tuple[str, ...] = ("raw", "filtered", "fit", "physics", "gt")
+"""The result names of ``pipeline.schema.sources`` plus ``gt`` (ground truth)."""
+_LEGACY_SOURCES = {"triangulation": "raw"}
+"""Names older artifacts carry, read as today's."""
 
 
 @dataclass(frozen=True)
@@ -62,6 +65,8 @@ class Keypoints3D:
             object.__setattr__(self, "filled", np.zeros((f, p, j), dtype=bool))
         check_array("Keypoints3D.filled", self.filled, (f, p, j), "b")
         check_finite_where("Keypoints3D.xyz_m", self.xyz_m, self.valid)
+        if self.source in _LEGACY_SOURCES:
+            object.__setattr__(self, "source", _LEGACY_SOURCES[self.source])
         if self.source not in SOURCES:
             raise ValueError(f"Keypoints3D.source must be one of {SOURCES}, got {self.source!r}")
         if not (np.isfinite(self.fps) and self.fps > 0):

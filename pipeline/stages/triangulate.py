@@ -124,7 +124,7 @@ def run(
 ) -> tuple[Keypoints3D, Keypoints3D]:
     """Triangulate every athlete; returns ``(raw, filtered)`` keypoints (frames ``0..n_frames-1``).
 
-    ``raw`` (``source="triangulation"``): DLT results with ``valid``, ``n_views``,
+    ``raw`` (``source="raw"``): DLT results with ``valid``, ``n_views``,
     ``reproj_err_px`` (mean over the kept views, undistorted pixels) and ``confidence``
     (mean 2D confidence of the kept views, lowered by the reprojection error).
     ``filtered`` (``source="filtered"``): after ``pipeline.stages.filtering.run``.
@@ -153,7 +153,7 @@ def run(
         confidence=np.where(ok, np.clip(confidence, 0.0, 1.0), 0.0),
         n_views=n_used.astype(np.int64),
         reproj_err_px=np.where(ok, mean_err, np.nan),
-        source="triangulation",
+        source="raw",
     )
     if not cfg.filter.enabled:
         return raw, run_fill(run_filter(raw, cfg.filter), cfg.fill)

@@ -269,7 +269,7 @@ def test_keypoints_json_names_follow_identities(client: TestClient, tokens: dict
     client.post("/api/jobs", json={"session_id": sid}, headers=admin)
     run_jobs(settings)
     client.put(f"/api/sessions/{sid}/identities/0", json={"name": "Usyk"}, headers=auth(tokens["annotator"]))
-    d = client.get(f"/api/sessions/{sid}/results/keypoints3d", params={"source": "triangulation"}, headers=admin).json()
+    d = client.get(f"/api/sessions/{sid}/results/keypoints3d", params={"source": "raw"}, headers=admin).json()
     assert d["persons"][0]["name"] == "Usyk"
     xyz = np.array([[j if j is not None else [np.nan] * 3 for j in f] for f in d["persons"][0]["joints"]])
     assert np.nanmax(np.abs(xyz)) < 5.0  # metres, inside the ring

@@ -59,7 +59,7 @@ def test_synthetic_bout_over_http_with_identity_swap(tmp_path: Path) -> None:
         assert any(e["status"] == "running" for e in events) or len(events) == 1
         assert [events[-1]["progress"][s]["status"] for s in stages] == ["ran"] * len(stages)
         manifests = {s: a.get(f"/api/sessions/{sid}/results/{s}/manifest.json").json() for s in stages}
-        before = a.get(f"/api/sessions/{sid}/results/keypoints3d", params={"source": "triangulation"}).json()
+        before = a.get(f"/api/sessions/{sid}/results/keypoints3d", params={"source": "raw"}).json()
 
         swap_at = 30
         r = n.post(f"/api/sessions/{sid}/annotations", json={
@@ -80,7 +80,7 @@ def test_synthetic_bout_over_http_with_identity_swap(tmp_path: Path) -> None:
             m = a.get(f"/api/sessions/{sid}/results/{s}/manifest.json").json()
             assert m["created_unix_s"] > manifests[s]["created_unix_s"]
         assert set(a.get(f"/api/sessions/{sid}/status").json()["stages"].values()) == {"fresh"}
-        after = a.get(f"/api/sessions/{sid}/results/keypoints3d", params={"source": "triangulation"}).json()
+        after = a.get(f"/api/sessions/{sid}/results/keypoints3d", params={"source": "raw"}).json()
         a.close()
         n.close()
 

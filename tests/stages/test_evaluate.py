@@ -65,7 +65,7 @@ def test_evaluate_reports_physical_plausibility() -> None:
     xyz[:, 0, :, 0] += np.arange(4)[:, None] * 0.01  # person 0 slides 1 cm per frame, feet included
     kp = kp.replace(xyz_m=xyz)
     assoc = Association(np.array([0, 1]), ("A", "B"), tracks.track_id.copy(), np.ones(tracks.n_dets))
-    metrics, _ = run(EvaluateInputs(rig, tracks, assoc, {"fit": kp, "raw": kp.replace(source="triangulation")}), EvaluateConfig())
+    metrics, _ = run(EvaluateInputs(rig, tracks, assoc, {"fit": kp, "raw": kp.replace(source="raw")}), EvaluateConfig())
     fit = metrics["sources"]["fit"]
     assert fit["ground_penetration_max_mm"] == 20.0
     assert fit["inter_penetration_max_mm"] > 0.0

@@ -26,7 +26,7 @@ def _kp(xyz: np.ndarray, valid: np.ndarray) -> Keypoints3D:
     return Keypoints3D(
         joint_names=COCO17, person_ids=np.array([0]), frame_indices=np.arange(F), fps=50.0,
         xyz_m=np.where(valid[..., None], xyz, 0.0), valid=valid, confidence=np.where(valid, 0.9, 0.0),
-        n_views=np.where(valid, 4, 0), reproj_err_px=np.where(valid, 2.0, np.nan), source="triangulation",
+        n_views=np.where(valid, 4, 0), reproj_err_px=np.where(valid, 2.0, np.nan), source="raw",
     )
 
 

@@ -25,7 +25,7 @@ def _gt_assoc(gt_pod: np.ndarray) -> Association:
 def test_noise_free_recovers_ground_truth_exactly() -> None:
     s = make_scene(n_frames=10, noise_px=0.0, miss_joint=0.0)
     raw, filtered = run(s.tracks, _gt_assoc(s.gt_person_of_det), s.rig)
-    assert raw.source == "triangulation" and filtered.source == "filtered"
+    assert raw.source == "raw" and filtered.source == "filtered"
     assert raw.valid.all() and (raw.n_views == 4).all()
     assert np.abs(raw.xyz_m - s.gt_xyz).max() < 1e-6  # distortion is undone exactly
     assert np.nanmax(raw.reproj_err_px) < 1e-4
@@ -118,7 +118,7 @@ def test_runner_steps_end_to_end(tmp_path: Path) -> None:
     assoc = store.load("associate", "association", Association)
     kp = store.load("triangulate", "keypoints3d", Keypoints3D)
     raw = store.load("triangulate", "raw", Keypoints3D)
-    assert assoc.person_names == ("Red", "Blue") and kp.source == "filtered" and raw.source == "triangulation"
+    assert assoc.person_names == ("Red", "Blue") and kp.source == "filtered" and raw.source == "raw"
     assert mpjpe(kp, s.gt_keypoints()) < 25.0
     m = store.manifest("triangulate")
     assert m is not None and m.metrics["kept_views_median_px"] < 5 and m.metrics["reproj_median_px"] < 5 and m.config["filter"]["jerk_std"] == 120.0

@@ -36,14 +36,14 @@ def test_next_problem_skips_runs_and_wraps() -> None:
 
 def test_series(tmp_path: Path) -> None:
     d = load_session_data(build_session(tmp_path, n_frames=20))
-    s = compute_series(d, "triangulated")
+    s = compute_series(d, "filtered")
     assert s is not None
     # person 0 jabs (the right wrist moves 0.4 m back and forth), person 1 only drifts
     assert np.nanmax(s.wrist_speed_mps[:, 0]) > 2 * np.nanmax(s.wrist_speed_mps[:, 1])
     np.testing.assert_allclose(np.nanmedian(s.distance_m), 2.0, atol=0.05)
     assert np.isnan(s.wrist_speed_mps[0]).all()  # no speed at the first frame
     assert s.reproj_err_px[18, 1] == 30.0 and s.reproj_err_px[0, 0] == 2.0
-    assert compute_series(d, "fitted") is None
+    assert compute_series(d, "fit") is None
 
 
 def test_fill_gaps() -> None:

@@ -52,8 +52,8 @@ def test_read_only_viewer_renders_frames_and_persons(tmp_path: Path, server: vis
         app.render(8)
         assert "reprojection error high" in app.timeline.info.content
         # switching the source to triangulated keeps working (no physics keypoints drawn then)
-        app.display.source.value = "Triangulated"
-        assert app.opts.source == "triangulated"
+        app.display.source.value = "Filtered"
+        assert app.opts.source == "filtered"
         # a reload keeps the compiled physics model unless the physics stage was rewritten
         geoms = app.persons.physics_geoms
         app.reload()

@@ -30,7 +30,7 @@ def test_overlay_colours_follow_identity(tmp_path: Path) -> None:
     pal = IdentityPalette(None, ("Red", "Blue"))
     fp = FrameProvider(d, max_width=320)
     img = fp.frame(0, 2)
-    ov = overlay_for(d, 0, 2, "triangulated")
+    ov = overlay_for(d, 0, 2, "filtered")
     assert ov.boxes_px.shape == (2, 4) and ov.reproj_px.shape == (2, 17, 2)
     out = draw_overlay(img, ov, fp.scale(0), pal)
     # each athlete's box region holds its colour
@@ -41,13 +41,13 @@ def test_overlay_colours_follow_identity(tmp_path: Path) -> None:
         assert _count(crop, (RED, BLUE)[p]) > 20, f"no {('red', 'blue')[p]} pixels in the box of person {p}"
     # unassigned detections are grey: drop the association
     d.association = None
-    grey = draw_overlay(fp.frame(0, 2), overlay_for(d, 0, 2, "triangulated"), fp.scale(0), pal)
+    grey = draw_overlay(fp.frame(0, 2), overlay_for(d, 0, 2, "filtered"), fp.scale(0), pal)
     assert _count(grey, (150, 150, 150)) > 20
 
 
 def test_overlay_reprojection_matches_detections(tmp_path: Path) -> None:
     d = load_session_data(build_session(tmp_path, n_frames=4))
-    ov = overlay_for(d, 1, 3, "triangulated")
+    ov = overlay_for(d, 1, 3, "filtered")
     # the fixture's detections are exact projections of the 3D keypoints
     for i in range(2):
         k = int(np.flatnonzero(ov.reproj_persons == ov.persons[i])[0])

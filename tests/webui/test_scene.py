@@ -13,7 +13,7 @@ from webui.scene.world import camera_pose, ring_segments, vertical_fov_rad
 
 
 def test_skeleton_segments_fixed_size_and_invalid_bones_collapse(tmp_path: Path) -> None:
-    kp = load_session_data(build_session(tmp_path, n_frames=4)).keypoints["triangulated"]
+    kp = load_session_data(build_session(tmp_path, n_frames=4)).keypoints["filtered"]
     segs, joints, ok = skeleton_segments(kp, 2, 1)
     bones = bone_indices(kp.joint_names)
     assert ok and segs.shape == (len(bones), 2, 3) and joints.shape == (17, 3)

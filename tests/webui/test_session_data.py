@@ -13,7 +13,7 @@ def test_loads_what_exists(tmp_path: Path) -> None:
     d = load_session_data(build_session(tmp_path, n_frames=8))
     assert d.n_frames == 8
     assert d.person_ids == [0, 1]
-    assert set(d.keypoints) == {"triangulated"}
+    assert set(d.keypoints) == {"filtered"}
     assert d.bodyfit is None and d.physics is None and d.physics_xml is None
     rows = d.det_rows(1, 3)
     assert rows.size == 2
@@ -51,7 +51,7 @@ def test_stamp_changes_when_a_stage_is_rewritten(tmp_path: Path) -> None:
 
 
 def test_frame_row(tmp_path: Path) -> None:
-    kp = load_session_data(build_session(tmp_path, n_frames=6)).keypoints["triangulated"]
+    kp = load_session_data(build_session(tmp_path, n_frames=6)).keypoints["filtered"]
     kp2 = kp.replace(frame_indices=np.array([0, 2, 4, 6, 8, 10]))
     assert frame_row(kp2, 4) == 2
     assert frame_row(kp2, 5) is None

@@ -1,4 +1,4 @@
-"""Display options: which 3D result to show (triangulated / fitted / physics) and which layers."""
+"""Display options: which 3D result to show (filtered / fit / physics) and which layers."""
 
 from __future__ import annotations
 
@@ -6,7 +6,9 @@ from dataclasses import dataclass
 
 import viser
 
-SOURCE_LABELS: dict[str, str] = {"triangulated": "Triangulated", "fitted": "Fitted", "physics": "Physics"}
+from pipeline.schema.sources import RESULT_LABELS
+
+SOURCE_LABELS: dict[str, str] = RESULT_LABELS
 
 
 @dataclass

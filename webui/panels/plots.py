@@ -50,7 +50,7 @@ def make_plots(server: viser.ViserServer, s: PlotSeries | None, palette: Identit
     sc = {"x": vup.Scale(time=False)}
     wrist = server.gui.add_uplot(c["w"][0], c["w"][1], title="Wrist speed", aspect=2.0, scales=sc)
     dist = server.gui.add_uplot(c["d"][0], c["d"][1], title="Distance between athletes", aspect=2.0, scales=sc)
-    reproj = server.gui.add_uplot(c["r"][0], c["r"][1], title="Reprojection error (triangulated)", aspect=2.0, scales=sc)
+    reproj = server.gui.add_uplot(c["r"][0], c["r"][1], title="Reprojection error (filtered)", aspect=2.0, scales=sc)
     note = server.gui.add_markdown("Gaps (frames without an estimate) are interpolated for display.")
     return PlotsHandles(wrist, dist, reproj, note)
 

@@ -56,7 +56,7 @@ class PersonNodes:
 
 @dataclass
 class DisplayOptions:
-    source: str = "triangulated"
+    source: str = "filtered"
     show_skeleton: bool = True
     show_body: bool = True
     show_physics: bool = True

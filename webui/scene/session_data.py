@@ -22,13 +22,14 @@ from pipeline.schema.detections import Tracks2D
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import BodyFit, PhysicsResult
 from pipeline.schema.session import SessionConfig
+from pipeline.schema.sources import RESULT_ARTIFACTS
 from pipeline.stages.evaluate import ProblemFlags
 
 log = logging.getLogger(__name__)
 
-KeypointSource = Literal["triangulated", "fitted", "physics"]
-KEYPOINT_SOURCES: dict[str, str] = {"triangulated": "triangulate", "fitted": "fit", "physics": "physics"}
-"""Viewer source name -> stage whose ``keypoints3d.npz`` it shows."""
+KeypointSource = Literal["filtered", "fit", "physics"]
+KEYPOINT_SOURCES: dict[str, str] = {name: RESULT_ARTIFACTS[name][0] for name in ("filtered", "fit", "physics")}
+"""Viewer source name (``pipeline.schema.sources``) -> stage whose ``keypoints3d.npz`` it shows."""
 
 STAGES_READ: tuple[str, ...] = ("track", "associate", "triangulate", "fit", "physics", "evaluate")
 
@@ -44,7 +45,7 @@ class SessionData:
         n_frames: timeline length (frames of the 2D input, else of the 3D results).
         tracks: ``track/tracks.npz`` or None.
         association: ``associate/association.npz`` (rows aligned with ``tracks``) or None.
-        keypoints: source name (``triangulated``/``fitted``/``physics``) -> Keypoints3D.
+        keypoints: source name (``filtered``/``fit``/``physics``) -> Keypoints3D.
         bodyfit: ``fit/bodyfit.npz`` or None.
         physics: ``physics/result.npz`` or None.
         physics_xml: path of ``physics/scene.xml`` or None.

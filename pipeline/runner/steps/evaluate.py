@@ -15,11 +15,11 @@ from pipeline.schema.association import Association
 from pipeline.schema.base import load_npz
 from pipeline.schema.detections import Tracks2D
 from pipeline.schema.keypoints3d import Keypoints3D
+from pipeline.schema.sources import RESULT_ARTIFACTS
 from pipeline.stages.evaluate import EvaluateConfig, EvaluateInputs, run
 
 log = logging.getLogger(__name__)
 
-SOURCES = (("raw", "triangulate", "raw"), ("filtered", "triangulate", "keypoints3d"), ("fit", "fit", "keypoints3d"), ("physics", "physics", "keypoints3d"))
 
 
 def _input_files(ctx: StageContext) -> list[Path]:
@@ -35,7 +35,7 @@ def _execute(ctx: StageContext, cfg: EvaluateConfig) -> dict[str, Any]:
     enabled = set(ctx.session.stages or STAGE_ORDER)
     sources = {
         name: ctx.load(stage, art, Keypoints3D)
-        for name, stage, art in SOURCES
+        for name, (stage, art) in RESULT_ARTIFACTS.items()
         if stage in enabled and ctx.has(stage, f"{art}.npz")
     }
     gt = load_npz(ctx.resolve(s.ground_truth), Keypoints3D) if s.ground_truth else None
