@@ -148,13 +148,11 @@ def write_annotations_file(session_dir: Path, payloads: list[dict[str, Any]]) ->
 
 
 def enabled_stage_names(session_dir: Path) -> list[str]:
-    """The session's stages in pipeline order (``session.json`` ``stages``, or every known stage)."""
-    from pipeline.runner.registry import STAGE_ORDER
+    """The session's stages in pipeline order (``pipeline.runner.core.enabled_stages``)."""
+    from pipeline.runner.core import enabled_stages
     from pipeline.schema.session import SessionConfig
 
-    cfg = SessionConfig.load(session_dir)
-    wanted = cfg.stages or STAGE_ORDER
-    return [s for s in STAGE_ORDER if s in wanted]
+    return enabled_stages(SessionConfig.load(session_dir))
 
 
 def stale_from(session_dir: Path, kind: str) -> str | None:
