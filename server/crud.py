@@ -11,7 +11,7 @@ import time
 from collections.abc import Sequence
 from typing import Any, TypeVar
 
-from sqlalchemy import bindparam, func, text
+from sqlalchemy import bindparam, text
 from sqlmodel import Session, SQLModel, col, select
 from sqlmodel.sql.sqltypes import UTCDateTime
 
@@ -113,11 +113,6 @@ def update_bout(session: Session, *, bout: Bout, changes: dict[str, Any]) -> Bou
 def delete_bout(session: Session, *, bout: Bout) -> None:
     session.delete(bout)
     session.commit()
-
-
-def has_active_job(session: Session, *, bout_id: int) -> bool:
-    q = select(func.count()).select_from(Job).where(Job.session_id == bout_id, col(Job.status).in_(("queued", "running")))
-    return int(session.exec(q).one()) > 0
 
 
 # ---------------------------------------------------------------- identities

@@ -38,10 +38,6 @@ __all__ = [
 from pipeline.schema.keypoints3d import Keypoints3D
 
 
-def _servo_qpos(model: mujoco.MjModel, layout: SceneLayout) -> np.ndarray:
-    return np.array([model.jnt_qposadr[model.actuator_trnid[a, 0]] for a in layout.servo_ids], dtype=np.int64)
-
-
 def _initial_root(targets: np.ndarray, names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
     """Root position and quat_wxyz from hips and shoulders (rest pose faces +x, left +y)."""
     ix = {n: i for i, n in enumerate(names)}

@@ -94,17 +94,8 @@ class Reference:
     frame. None: both are held for the whole frame."""
 
 
-def _root_frames(layout: SceneLayout, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]]:
-    return [(data.xpos[p.root_body].copy(), data.xmat[p.root_body].reshape(3, 3).copy()) for p in layout.persons]
-
-
 def _skew(a: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-
-
-def inter_person_contacts(layout: SceneLayout, model: mujoco.MjModel, data: mujoco.MjData) -> list[int]:
-    """Indices into ``data.contact`` of contacts between geoms of different people."""
-    return _cross_group_contacts(layout.geom_person, data)
 
 
 def _cross_group_contacts(geom_group: np.ndarray, data: mujoco.MjData) -> list[int]:
@@ -406,11 +397,3 @@ class TrackingCost:
         return lx, lu, lxx, luu
 
 
-def tracking_error_m(layout: SceneLayout, data: mujoco.MjData, targets_world: np.ndarray, weight: np.ndarray, site_ids: np.ndarray) -> float:
-    """Weighted mean world-frame distance between sites and targets (persons, sites, 3)."""
-    err, tot = 0.0, 0.0
-    for i in range(len(layout.persons)):
-        d = np.linalg.norm(data.site_xpos[site_ids[i]] - targets_world[i], axis=-1)
-        err += float((d * weight[i]).sum())
-        tot += float(weight[i].sum())
-    return err / max(tot, 1e-9)

@@ -175,7 +175,6 @@ def _run_seed(
                 "residual_windows": f"{st['windows_with_residual']}/{st['windows']}",
                 "residual_mean_frac_bw": st["residual_force_mean_frac_bw"],
                 "residual_max_frac_bw": st["residual_force_max_frac_bw"],
-                "mujoco_inter_pen_max_mm": st["mujoco_inter_penetration_max_mm"],
                 "body_pen_max_mm": st["body_penetration_max_mm"],
                 "body_pen_mean_mm": st["body_penetration_mean_mm"],
                 **needed_cols(

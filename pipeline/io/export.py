@@ -98,29 +98,6 @@ def keypoints3d_to_json(kp: Keypoints3D, names: dict[int, str] | None = None) ->
     }
 
 
-def keypoints3d_from_json(d: dict[str, Any], where: str = "<json>") -> Keypoints3D:
-    """Inverse of :func:`keypoints3d_to_json` (for round-trip tests and re-import)."""
-    if d.get("format") != JSON_FORMAT_ID:
-        raise ValueError(f"{where}: not a {JSON_FORMAT_ID} export (format={d.get('format')!r})")
-    persons = d["persons"]
-    frames = np.asarray(persons[0]["frame_indices"] if persons else [], dtype=np.int64)
-    j = len(d["joint_names"])
-    kp = Keypoints3D.empty(tuple(d["joint_names"]), np.array([p["id"] for p in persons]), frames, d["fps"], d["source"])
-    xyz, valid, conf = kp.xyz_m.copy(), kp.valid.copy(), kp.confidence.copy()
-    for pi, p in enumerate(persons):
-        if len(p["joints"]) != len(frames):
-            raise ValueError(f"{where}: person {p['id']} has {len(p['joints'])} frames, expected {len(frames)}")
-        for f, row in enumerate(p["joints"]):
-            if len(row) != j:
-                raise ValueError(f"{where}: person {p['id']} frame {f} has {len(row)} joints, expected {j}")
-            for jj, v in enumerate(row):
-                if v is not None:
-                    xyz[f, pi, jj] = v
-                    valid[f, pi, jj] = True
-        conf[:, pi] = np.asarray(p["confidence"], dtype=np.float64)
-    return kp.replace(xyz_m=xyz, valid=valid, confidence=conf)
-
-
 def export_keypoints3d(kp: Keypoints3D, fmt: ExportFormat, names: dict[int, str] | None = None) -> bytes:
     """Serialise keypoints in ``fmt`` ("json" or "npz")."""
     if fmt == "json":

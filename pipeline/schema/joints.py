@@ -95,14 +95,6 @@ RIGID_BONES: tuple[tuple[str, str], ...] = tuple(b for b in BONES if "eye" not i
 FOOT_JOINTS: tuple[str, ...] = ("left_ankle", "right_ankle") + FEET6
 
 
-def joint_index(names: tuple[str, ...], name: str) -> int:
-    """Index of ``name`` in ``names``; ``ValueError`` listing the set if absent."""
-    try:
-        return names.index(name)
-    except ValueError:
-        raise ValueError(f"joint {name!r} is not in the joint set {names}") from None
-
-
 def bone_indices(names: tuple[str, ...], bones: tuple[tuple[str, str], ...] = BONES) -> list[tuple[int, int]]:
     """Index pairs of the bones whose both ends are in ``names``."""
     return [(names.index(a), names.index(b)) for a, b in bones if a in names and b in names]

@@ -696,7 +696,6 @@ def _run(
         "kinematic_frames": int(agg["kinematic_frames"]),
         "residual_force_mean_frac_bw": float(np.mean(np.linalg.norm(resid[..., :3], axis=-1) / weight_n[None])),
         "residual_force_max_frac_bw": float(np.max(np.linalg.norm(resid[..., :3], axis=-1) / weight_n[None], initial=0.0)),
-        "mujoco_inter_penetration_max_mm": float(body_pen.max(initial=0.0)),
         "body_penetration_max_mm": float(body_pen.max(initial=0.0)),
         "body_penetration_mean_mm": float(body_pen.mean()) if body_pen.size else 0.0,
         "compute_s": compute_s,
