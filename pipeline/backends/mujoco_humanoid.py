@@ -16,9 +16,9 @@ with two MuJoCo substeps per video frame (the defaults use four). Between video 
 the optimiser moves the targets along the reference (``mujoco_schedule``).
 
 Contacts: every geom touches the floor and the other athletes' geoms, except, by
-default, arm against arm of two athletes (``inter_person_arm_contacts``; those overlaps
-are removed from the reference instead, see ``PhysicsConfig.arm_contacts``), and foot
-against foot (``inter_person_foot_contacts``, ``PhysicsConfig.foot_contacts``). Within a
+default, arm against arm of two athletes (``HumanoidConfig.arm_contacts``; those overlaps
+are removed from the reference instead, see ``HumanoidConfig.arm_contacts``), and foot
+against foot (``HumanoidConfig.foot_contacts``). Within a
 person, parent/child, sibling and grandparent bodies do not collide.
 
 The root (``p{pid}_root_x/y/z`` slides + ``p{pid}_root`` ball) is kinematically a
@@ -27,94 +27,22 @@ local angular velocity). It is not actuated, except by the fallback *residual*:
 three force-limited servos ``p{pid}_res_x/y/z`` (actuator group 3, disabled
 in the MJCF via ``opt.disableactuator``) that apply the reference's residual root
 force plus a PD pull towards the reference root position, with at most
-``residual_force_frac`` of body weight per axis. The optimiser enables them (in
-every window by default, see ``PhysicsConfig.residual_root``) and reports their force.
+``ResidualConfig.force_frac`` of body weight per axis. The optimiser enables them (in
+every window by default, see ``ResidualConfig.mode``) and reports their force.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
 from xml.sax.saxutils import quoteattr
 
 import mujoco
 import numpy as np
 
 from pipeline.backends.humanoid_skeleton import Skeleton
+from pipeline.backends.mujoco_config import DENSITY_KG_M3, HumanoidConfig, ResidualConfig
 
-DENSITY_KG_M3 = 985.0
 GRAVITY = 9.81
-
-
-@dataclass(frozen=True)
-class HumanoidConfig:
-    """How the humanoids and the scene are built. The defaults are the physics stage's
-    (``pipeline.stages.physics.humanoid_config(PhysicsConfig())``; a test keeps them
-    equal), so that a scene built here behaves as the stage's."""
-
-    density_kg_m3: float = DENSITY_KG_M3
-    """Body density used for every geom's mass (the paper's 985 kg/m³)."""
-    kp_per_kg: float = 12.0
-    """Servo stiffness (N·m/rad) per kg of body mass, times the joint's strength."""
-    kv_ratio: float = 0.1
-    """Servo damping kv = kv_ratio · kp (s)."""
-    torque_per_kg: float = 6.0
-    """Torque limit (N·m) per kg of body mass, times the joint's strength."""
-    armature: float = 0.25
-    """Joint armature (kg·m²) of the strongest joints of a 75 kg person, scaled by
-    each joint's strength and the body mass; stabilises the video-rate step."""
-    target_slack_rad: float = 1.0
-    """Servo targets may exceed the joint range by this much (torque stays limited)."""
-    joint_damping: float = 1.0
-    """Passive joint damping (N·m·s/rad)."""
-    residual_root: bool = True
-    """Add the (disabled) residual root position servos, for the fallback."""
-    residual_force_frac: float = 2.0
-    """Force limit of each residual servo as a fraction of body weight."""
-    residual_saturation_m: float = 0.1
-    """Root position error at which a residual servo reaches its force limit."""
-    self_collision: Literal["adjacent_filtered", "none"] = "adjacent_filtered"
-    """``adjacent_filtered``: a person's parts collide except parent/child, siblings
-    and grandparent pairs; ``none``: only inter-person and ground contacts."""
-    friction: float = 2.0
-    """Sliding friction of the floor and the soles (the floor's priority makes every floor
-    contact use it). 2 against the soft contact's creep (``PhysicsConfig.floor_friction``);
-    1 until 2026-11-26."""
-    body_friction: float = 1.0
-    """Sliding friction of the other body geoms: contacts between the two athletes use
-    it (skin, sweat, gloves), contacts of a body part with the floor the floor's."""
-    floor_margin_m: float = 0.008
-    """Floor contact margin: the soft contact settles ~2-3 mm into its margin, so
-    soles rest on z ≈ 0 instead of sinking into the floor."""
-    floor_solref: tuple[float, float] = (0.005, 1.0)
-    """MuJoCo ``solref`` of floor contacts: (time constant s, damping ratio), or
-    (−stiffness, −damping) when negative (see MuJoCo's solver parameters)."""
-    floor_solimp: tuple[float, float, float] = (0.9, 0.95, 0.001)
-    """MuJoCo ``solimp`` (d0, dwidth, width) of floor contacts: an impedance closer to 1
-    makes the floor harder (less soft-contact sinking under a landing boxer)."""
-    body_solref_timeconst_s: float = 0.02
-    """Contact time constant of body geoms (inter-person contacts); softer than the
-    soles' (0.02 s) so that overlapping athletes are pushed apart gently."""
-    substeps: int = 8
-    """MuJoCo steps per video frame: timestep = 1 / (fps · substeps). At 50 fps, one
-    step (20 ms) is only stable with torque limits ≤ ~3 N·m/kg, too weak to track
-    boxing footwork; two steps (10 ms) are stable at 6 N·m/kg. Four allow a floor twice
-    as stiff, and keep two gloved humanoids started inside each other stable under random
-    targets, which two did not (``tests/backends/test_anny_humanoid.py``); eight (the
-    stage's) allow the floor of ``floor_solref`` and let planted feet roll less
-    (``PhysicsConfig.substeps``)."""
-    inter_person_arm_contacts: bool = False
-    """Whether the arms (upper arms, forearms, hands) of two different persons collide
-    with each other (``PhysicsConfig.arm_contacts``). Their other contacts (arm-trunk,
-    arm-head, trunk-trunk, legs, ...) are always simulated."""
-    inter_person_foot_contacts: bool = False
-    """Whether the feet of two different persons collide with each other
-    (``PhysicsConfig.foot_contacts``); foot against shin, thigh or any other part is
-    simulated either way."""
-    solver_iterations: int = 20
-    """Constraint solver iterations per step (Newton)."""
-    person_spacing_m: float = 2.0
-    """Spacing of the default root positions in the MJCF (viewer only)."""
 
 
 @dataclass(frozen=True)
@@ -181,7 +109,13 @@ def person_mass_kg(skel: Skeleton, density_kg_m3: float = DENSITY_KG_M3) -> floa
 
 
 def _person_xml(
-    pid: int, skel: Skeleton, cfg: HumanoidConfig, offset: np.ndarray, mass: float, assets: list[str] | None = None
+    pid: int,
+    skel: Skeleton,
+    cfg: HumanoidConfig,
+    offset: np.ndarray,
+    mass: float,
+    assets: list[str] | None = None,
+    residual: ResidualConfig | None = None,
 ) -> tuple[str, list[str]]:
     """Body tree XML and actuator lines of one person; mesh assets are appended to ``assets``."""
     pre = f"p{pid}_"
@@ -255,9 +189,9 @@ def _person_xml(
 
     root = children[""][0]
     body_lines = emit(root, 2)
-    if cfg.residual_root:
-        lim = cfg.residual_force_frac * mass * GRAVITY
-        kp = lim / cfg.residual_saturation_m
+    if residual is not None:
+        lim = residual.force_frac * mass * GRAVITY
+        kp = lim / residual.saturation_m
         kv = 2.0 * np.sqrt(kp * mass)
         for ax in "xyz":
             actuators.append(
@@ -272,8 +206,11 @@ def build_scene_mjcf(
     person_ids: list[int],
     fps: float,
     cfg: HumanoidConfig = HumanoidConfig(),
+    residual: ResidualConfig | None = ResidualConfig(),
 ) -> str:
-    """MJCF text of all persons on a ground plane (z = 0), timestep 1/(fps·substeps).
+    """MJCF text of all persons on a ground plane (z = 0), timestep 1/(fps·substeps), with the
+    residual root actuators of ``residual`` (disabled until the optimiser enables them; none
+    when ``residual`` is None).
 
     Raises ``ValueError`` for mismatched inputs or a non-positive fps.
     """
@@ -290,15 +227,15 @@ def build_scene_mjcf(
     for i, (pid, skel) in enumerate(zip(person_ids, skeletons, strict=True)):
         mass = person_mass_kg(skel, cfg.density_kg_m3)
         offset = np.array([0.0, cfg.person_spacing_m * i, skel.pelvis_height_m])
-        xml, a = _person_xml(pid, skel, cfg, offset, mass, assets)
+        xml, a = _person_xml(pid, skel, cfg, offset, mass, assets, residual)
         bodies.append(xml)
         acts += a
         if cfg.self_collision == "adjacent_filtered":
             excludes += [f'    <exclude body1="p{pid}_{a_}" body2="p{pid}_{b_}"/>' for a_, b_ in _excluded_pairs(skel)]
-    fr = cfg.friction
-    if not cfg.inter_person_arm_contacts:
+    fr = cfg.floor_friction
+    if cfg.arm_contacts != "simulate":
         excludes += _inter_person_excludes(skeletons, person_ids, ARM_BODIES)
-    if not cfg.inter_person_foot_contacts:
+    if cfg.foot_contacts != "simulate":
         excludes += _inter_person_excludes(skeletons, person_ids, FOOT_BODIES)
     asset_xml = f"  <asset>\n{chr(10).join(assets)}\n  </asset>\n" if assets else ""
     return f"""<mujoco model="cornerman_scene">
@@ -308,7 +245,7 @@ def build_scene_mjcf(
   <default>
     <joint damping="{cfg.joint_damping:.5g}" limited="true"/>
     <geom density="{cfg.density_kg_m3:.6g}" friction="{cfg.body_friction:.3g} 0.01 0.001" condim="3" rgba="0.7 0.6 0.5 1"
-          solref="{cfg.body_solref_timeconst_s:.4g} 1"/>
+          solref="{cfg.body_solref_s:.4g} 1"/>
     <default class="sole">
       <geom rgba="0.3 0.3 0.3 1" solref="0.02 1" friction="{fr:.3g} 0.01 0.001"/>
     </default>
@@ -335,11 +272,11 @@ def build_scene_mjcf(
 
 
 ARM_BODIES = tuple(f"{side}_{b}" for side in ("left", "right") for b in ("upper_arm", "forearm", "hand"))
-"""Bodies whose contacts with the other athlete's arms ``inter_person_arm_contacts`` drops."""
+"""Bodies whose contacts with the other athlete's arms ``arm_contacts = "reference"`` drops."""
 
 
 FOOT_BODIES = ("left_foot", "right_foot")
-"""Bodies whose contacts with the other athlete's feet ``inter_person_foot_contacts`` drops."""
+"""Bodies whose contacts with the other athlete's feet ``foot_contacts = "reference"`` drops."""
 
 
 def _inter_person_excludes(skeletons: list[Skeleton], person_ids: list[int], names: tuple[str, ...]) -> list[str]:

@@ -29,6 +29,8 @@ from typing import Protocol
 import mujoco
 import numpy as np
 
+from pipeline.backends.mujoco_config import ILQRConfig
+
 log = logging.getLogger(__name__)
 
 MAX_SPEED = 100.0
@@ -61,55 +63,6 @@ class Cost(Protocol):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(lx (nx,), lu (nu,), lxx (nx, nx), luu (nu, nu)); lu/luu zero-size when u is None."""
         ...
-
-
-@dataclass(frozen=True)
-class ILQRConfig:
-    """Solver settings."""
-
-    max_iter: int = 6
-    """Iterations per window (each: linearise, backward pass, line search)."""
-    mu_init: float = 1e-3
-    """Initial regularisation added to Q_uu."""
-    mu_min: float = 1e-6
-    """Lower bound of μ."""
-    mu_max: float = 1e6
-    """Stop when μ exceeds this (no descent direction found)."""
-    mu_up: float = 10.0
-    """Factor on μ after a failure."""
-    mu_down: float = 0.3
-    """Factor on μ after a success."""
-    n_alpha: int = 8
-    """Number of line-search step sizes."""
-    alpha_min: float = 1e-3
-    """Smallest step size (log-spaced from 1)."""
-    fd_eps: float = 1e-6
-    """Finite-difference step of ``mjd_transitionFD``."""
-    fd_centered: bool = False
-    """Centred differences (2× cost, agree with forward ones to ~5e-6)."""
-    deriv_every: int = 2
-    """Compute A, B every k steps and interpolate linearly in between."""
-    jacobian_reuse: int = 1
-    """Iterations that share one set of dynamics Jacobians: with k > 1, A and B are
-    recomputed at iterations 1, k + 1, 2k + 1, … and reused in between, where only the
-    cost derivatives are recomputed along the new nominal (the line search still rolls
-    out the true dynamics, so the cost keeps decreasing monotonically)."""
-    max_backtracks: int = 6
-    """Failed backward/line-search attempts (μ raised each time) before an iteration gives up."""
-    rel_tol: float = 1e-3
-    """Stop when the relative cost decrease of an iteration is below this."""
-    substeps: int = 1
-    """MuJoCo steps per control step (the model's timestep is the control period
-    divided by this); A and B are chained over the substeps."""
-    rollout_threads: int = 1
-    """Line-search candidates rolled out together on this many threads (each on its own
-    ``MjData``; MuJoCo releases the GIL while it steps, the Python cost does not).
-    1 = one after the other."""
-
-    def __post_init__(self) -> None:
-        for name in ("deriv_every", "jacobian_reuse", "substeps", "rollout_threads", "n_alpha"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"ILQRConfig.{name} must be >= 1, got {getattr(self, name)}")
 
 
 @dataclass
@@ -242,8 +195,10 @@ def linearise(
     active: np.ndarray,
     t0: int = 0,
     dynamics: Linearisation | None = None,
+    substeps: int = 1,
 ) -> Linearisation:
-    """Dynamics Jacobians and cost derivatives along ``traj`` (see module docstring).
+    """Dynamics Jacobians and cost derivatives along ``traj`` (see module docstring);
+    ``substeps`` MuJoCo steps per control step, chained.
 
     ``dynamics``: a previous linearisation whose A, B are reused (only the cost
     derivatives are recomputed; ``ILQRConfig.jacobian_reuse``)."""
@@ -283,7 +238,7 @@ def linearise(
                 cost.prepare(model, data, t0 + t, 0)
                 mujoco.mjd_transitionFD(model, data, cfg.fd_eps, cfg.fd_centered, Ab, Bb, None, None)
                 A_t, B_t = Ab.copy(), Bb.copy()
-                for sub in range(1, cfg.substeps):
+                for sub in range(1, substeps):
                     # Chain rule over substeps with the control held: x' = f(f(x, u), u)
                     # (plus the cost's time-dependent offsets, which do not depend on u).
                     mujoco.mj_step(model, data)
@@ -372,8 +327,10 @@ def optimise(
     active: np.ndarray | None = None,
     t0: int = 0,
     warm0: np.ndarray | None = None,
+    substeps: int = 1,
 ) -> ILQRResult:
-    """Minimise Σ_t l(x_t, u_t, t0+t) + l_T(x_H) over the ``active`` controls.
+    """Minimise Σ_t l(x_t, u_t, t0+t) + l_T(x_H) over the ``active`` controls, each control
+    held for ``substeps`` MuJoCo steps (the model's timestep is the control period / substeps).
 
     The returned cost history is non-increasing (a step is only accepted if it
     lowers the total cost). Raises ``UnstableRollout`` if the initial rollout is unstable.
@@ -383,7 +340,7 @@ def optimise(
         act = np.arange(model.nu) if active is None else np.asarray(active, dtype=np.int64)
         secs = {"derivatives_fd": 0.0, "derivatives_cost": 0.0, "backward": 0.0, "rollouts": 0.0}
         c0 = time.perf_counter()
-        nominal = rollout(model, data, cost, qpos0, qvel0, ctrl_init, t0=t0, warm0=warm0, substeps=cfg.substeps)
+        nominal = rollout(model, data, cost, qpos0, qvel0, ctrl_init, t0=t0, warm0=warm0, substeps=substeps)
         secs["rollouts"] += time.perf_counter() - c0
         if not nominal.stable:
             raise UnstableRollout("iLQR: the initial control sequence makes the simulation unstable")
@@ -395,7 +352,7 @@ def optimise(
         while it < cfg.max_iter:
             it += 1
             reuse = lin if (it - 1) % cfg.jacobian_reuse else None
-            lin = linearise(model, data, cost, nominal, cfg, act, t0=t0, dynamics=reuse)
+            lin = linearise(model, data, cost, nominal, cfg, act, t0=t0, dynamics=reuse, substeps=substeps)
             secs["derivatives_fd"] += lin.seconds_fd
             secs["derivatives_cost"] += lin.seconds_cost
             improved = False
@@ -411,7 +368,7 @@ def optimise(
                 K, k, _, _ = bp
                 best: Trajectory | None = None
                 c0 = time.perf_counter()
-                for cand in _candidates(model, data, cost, qpos0, qvel0, nominal, K, k, alphas, act, t0, warm0, cfg, pool):
+                for cand in _candidates(model, data, cost, qpos0, qvel0, nominal, K, k, alphas, act, t0, warm0, substeps, pool):
                     if cand.total < (best.total if best is not None else nominal.total):
                         best = cand
                 secs["rollouts"] += time.perf_counter() - c0
@@ -444,13 +401,13 @@ def _candidates(
     act: np.ndarray,
     t0: int,
     warm0: np.ndarray | None,
-    cfg: ILQRConfig,
+    substeps: int,
     pool: ThreadPoolExecutor | None,
 ) -> list[Trajectory]:
     """Closed-loop rollouts of every line-search step size, in ``alphas`` order."""
 
     def one(a: float, d: mujoco.MjData) -> Trajectory:
-        return rollout(model, d, cost, qpos0, qvel0, nominal.ctrl, t0, nominal, K, k, a, act, warm0, cfg.substeps)
+        return rollout(model, d, cost, qpos0, qvel0, nominal.ctrl, t0, nominal, K, k, a, act, warm0, substeps)
 
     if pool is None:
         return [one(float(a), data) for a in alphas]

@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from pipeline.backends.mujoco_ilqr import ILQRConfig, ILQRResult, UnstableRollout, optimise
+from pipeline.backends.mujoco_config import ILQRConfig, ResidualConfig, SolverConfig
+from pipeline.backends.mujoco_ilqr import ILQRResult, UnstableRollout, optimise
 from pipeline.backends.mujoco_reference import (
     Scene,
     build_reference,
@@ -28,7 +29,7 @@ from pipeline.backends.mujoco_reference import (
     servo_feedforward,
     site_targets,
 )
-from pipeline.backends.mujoco_tracking import CostWeights, Reference, TrackingCost
+from pipeline.backends.mujoco_tracking import Reference, TrackingCost
 
 __all__ = [
     "BoutSolution",
@@ -58,28 +59,6 @@ RESIDUAL_GROUP = 3
 """Actuator group of the residual root servos (see ``mujoco_humanoid``)."""
 
 
-@dataclass(frozen=True)
-class SolverConfig:
-    """Receding-horizon iLQR settings (see ``pipeline.stages.physics.PhysicsConfig``)."""
-
-    window: int = 24
-    """Frames per receding-horizon window."""
-    commit: int = 16
-    """Frames kept from each window."""
-    ilqr: ILQRConfig = ILQRConfig()
-    """Solver settings per window."""
-    weights: CostWeights = CostWeights()
-    """Cost weights (eq. 5)."""
-    residual: str = "fallback"
-    """``fallback`` / ``always`` / ``off`` (see ``PhysicsConfig.residual_root``)."""
-    fallback_tol_m: float = 0.05
-    """Mean joint error of a window above which it is redone with the residual."""
-    residual_torque_frac: float = 1.0
-    """Residual root torque limit: this fraction of body weight × 0.3 m."""
-    residual_rot_saturation_rad: float = 0.03
-    """Root orientation error at which the residual torque's PD part saturates."""
-
-
 @dataclass
 class BoutSolution:
     qpos: np.ndarray  # (F, nq)
@@ -106,15 +85,16 @@ def _first_stable(
     qpos0: np.ndarray,
     qvel0: np.ndarray,
     inits: list[np.ndarray],
-    cfg: SolverConfig,
+    cfg: ILQRConfig,
     active: np.ndarray,
     t0: int,
     warm: np.ndarray | None,
+    substeps: int,
 ) -> ILQRResult | None:
     """Optimise from the first initial control sequence that does not diverge."""
     for u0 in inits:
         try:
-            return optimise(m, d, cost, qpos0, qvel0, u0, cfg.ilqr, active=active, t0=t0, warm0=warm)
+            return optimise(m, d, cost, qpos0, qvel0, u0, cfg, active=active, t0=t0, warm0=warm, substeps=substeps)
         except UnstableRollout:
             continue
     return None
@@ -154,12 +134,14 @@ def optimise_bout(
     targets: np.ndarray,
     weight: np.ndarray,
     cfg: SolverConfig,
+    residual: ResidualConfig = ResidualConfig(),
     progress: Callable[[int, int, str], None] | None = None,
 ) -> BoutSolution:
     """Receding-horizon iLQR: windows of ``cfg.window`` steps, the first
     ``cfg.commit`` of which are kept; the next window starts from the simulated
     state, so the whole output is one continuous simulation. Cost is linear in the
-    number of frames."""
+    number of frames. The residual root wrench is used as ``residual.mode`` says (the
+    scene must have its actuators, ``build_scene(residual=...)``, unless it is off)."""
     m, lay = scene.model, scene.layout
     d = mujoco.MjData(m)
     F = ref.qpos.shape[0]
@@ -193,7 +175,7 @@ def optimise_bout(
 
     def set_residual(on: bool) -> None:
         m.opt.disableactuator = (base_disable & ~res_bit) if on else (base_disable | res_bit)
-        cost.set_residual(on, cfg.residual_torque_frac * bw * 0.3, cfg.residual_rot_saturation_rad)
+        cost.set_residual(on, residual.torque_frac * bw * 0.3, residual.rot_saturation_rad)
         if not on:
             d.xfrc_applied[:] = 0.0
 
@@ -204,20 +186,20 @@ def optimise_bout(
             nc = min(carry.shape[0], H)
             both = np.concatenate([servo, resid])
             u0[:nc, both] = carry[:nc, both]
-            use_res = cfg.residual == "always" and resid.size > 0
+            use_res = residual.mode == "always" and resid.size > 0
             set_residual(use_res)
-            res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg, active(use_res), s, warm)
-            if res_or_none is None and cfg.residual != "off" and resid.size and not use_res:
+            res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg.ilqr, active(use_res), s, warm, scene.substeps)
+            if res_or_none is None and residual.mode != "off" and resid.size and not use_res:
                 use_res = True
                 set_residual(True)
-                res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg, active(True), s, warm)
+                res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg.ilqr, active(True), s, warm, scene.substeps)
             if res_or_none is None:
                 # Last resort: restart this window from the reference state.
                 log.warning("physics: window at frame %d diverges from the simulated state; reset to the reference", s)
                 sol.resets += 1
                 qpos0 = lift_off_floor(scene, separate_persons(scene, ref.qpos[s]))
                 qvel0, warm = ref.qvel[s].copy(), None
-                res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [ref.ctrl[s : s + H]], cfg, active(use_res), s, warm)
+                res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [ref.ctrl[s : s + H]], cfg.ilqr, active(use_res), s, warm, scene.substeps)
                 if res_or_none is None:
                     # Keep the job alive: these frames hold the reference, reported as such.
                     C = _committed_frames(s, H, F, cfg.commit)
@@ -238,14 +220,14 @@ def optimise_bout(
                         progress(sol.windows, n_windows, f"window {sol.windows}/{n_windows}: diverged, kept the reference")
                     continue
             res = res_or_none
-            if cfg.residual == "fallback" and resid.size and not use_res:
+            if residual.mode == "fallback" and resid.size and not use_res:
                 err = _mean_site_error(scene, res.traj.qpos, targets[s : s + H + 1], weight[s : s + H + 1])
-                if err > cfg.fallback_tol_m:
+                if err > residual.fallback_tol_m:
                     for k_, v_ in res.seconds.items():
                         sol.seconds[k_] += v_
                     sol.iterations += res.iterations
                     set_residual(True)
-                    res2 = _first_stable(m, d, cost, qpos0, qvel0, [res.traj.ctrl], cfg, active(True), s, warm)
+                    res2 = _first_stable(m, d, cost, qpos0, qvel0, [res.traj.ctrl], cfg.ilqr, active(True), s, warm, scene.substeps)
                     if res2 is not None and res2.traj.total < res.traj.total:
                         res, use_res = res2, True
                     else:

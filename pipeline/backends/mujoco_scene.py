@@ -10,8 +10,8 @@ import mujoco
 import numpy as np
 
 from pipeline.backends.humanoid_skeleton import Skeleton
+from pipeline.backends.mujoco_config import HumanoidConfig, ResidualConfig
 from pipeline.backends.mujoco_humanoid import (
-    HumanoidConfig,
     SceneLayout,
     build_scene_mjcf,
     load_model,
@@ -32,6 +32,8 @@ class Scene:
     site_names: tuple[str, ...]
     site_ids: np.ndarray  # (persons, sites)
     probe_mjcf: str = ""
+    substeps: int = 1
+    """MuJoCo steps per video frame (``HumanoidConfig.substeps``)."""
 
     def probe_model(self) -> mujoco.MjModel:
         """The model of ``probe_mjcf`` (same layout as ``model``)."""
@@ -43,13 +45,21 @@ class Scene:
         return self.probe_model() if self.probe_mjcf not in ("", self.mjcf) else None
 
 
-def build_scene(skeletons: list[Skeleton], person_ids: list[int], fps: float, joint_names: tuple[str, ...], cfg: HumanoidConfig) -> Scene:
-    """Compile the scene and map ``joint_names`` to sites of every person."""
-    mjcf = build_scene_mjcf(skeletons, person_ids, fps, cfg)
-    every = replace(cfg, inter_person_arm_contacts=True, inter_person_foot_contacts=True)
-    probe = mjcf if every == cfg else build_scene_mjcf(skeletons, person_ids, fps, every)
+def build_scene(
+    skeletons: list[Skeleton],
+    person_ids: list[int],
+    fps: float,
+    joint_names: tuple[str, ...],
+    cfg: HumanoidConfig,
+    residual: ResidualConfig | None = ResidualConfig(),
+) -> Scene:
+    """Compile the scene (with ``residual``'s root actuators; none for None) and map
+    ``joint_names`` to sites of every person."""
+    mjcf = build_scene_mjcf(skeletons, person_ids, fps, cfg, residual)
+    every = replace(cfg, arm_contacts="simulate", foot_contacts="simulate")
+    probe = mjcf if every == cfg else build_scene_mjcf(skeletons, person_ids, fps, every, residual)
     model = load_model(mjcf)
     layout = scene_layout(model, person_ids)
     names = tuple(n for n in joint_names if n in layout.persons[0].site_ids)
     ids = np.array([[p.site_ids[n] for n in names] for p in layout.persons], dtype=np.int64)
-    return Scene(mjcf, model, layout, tuple(person_ids), names, ids, probe)
+    return Scene(mjcf, model, layout, tuple(person_ids), names, ids, probe, cfg.substeps)

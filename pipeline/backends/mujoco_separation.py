@@ -37,7 +37,7 @@ def separate_reference(
     inverse-dynamics feed-forward turned into torque spikes).
 
     The separation sees every contact between the athletes, also those the simulation
-    may leave out (``HumanoidConfig.inter_person_arm_contacts``): ``scene.probe_mjcf``."""
+    may leave out (``HumanoidConfig.arm_contacts``): ``scene.probe_mjcf``."""
     from scipy.ndimage import gaussian_filter1d
 
     m = scene.model

@@ -29,38 +29,12 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from pipeline.backends.mujoco_config import CostWeights
 from pipeline.backends.mujoco_humanoid import SceneLayout
 from pipeline.backends.mujoco_schedule import ServoSchedule
 
 ROOT_ROT_LEVER_M = 0.3
 FOOT_SITES = ("heel", "big_toe", "small_toe")
-
-
-@dataclass(frozen=True)
-class CostWeights:
-    """Weights of eq. 5 (defaults: the paper's)."""
-
-    w_reg: float = 0.001
-    """w1: velocity and control regularisation."""
-    w_pos: float = 10.0
-    """w2: joint position tracking (body frame) + root placement."""
-    w_vel: float = 0.003
-    """w3: generalised velocity tracking."""
-    w_collision: float = 20.0
-    """w4: squared inter-person penetration depth (m²)."""
-    world_frac: float = 0.5
-    """Share of w2 given to world-frame joint positions (the rest: body frame).
-    Body-frame residuals alone (the paper's) leave foot placement to the single
-    root-position residual; world-frame ones pull each foot to where it was seen."""
-    w_residual: float = 10.0
-    """Squared change (m²) of the residual root servos' targets from the reference's:
-    the optimiser may move a root with the residual, at this price."""
-    w_skate: float = 10.0
-    """Squared horizontal velocity (m²/s²) of the foot points of feet planted in the
-    reference (no sliding of stance feet)."""
-    collision_clearance_m: float = 0.0
-    """Gap the collision term asks for: it penalises (clearance − distance)² between
-    geoms of different athletes closer than this (0: only overlaps)."""
 
 
 @dataclass(frozen=True)

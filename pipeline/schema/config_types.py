@@ -111,6 +111,10 @@ def build_config(cls: type[T], values: Mapping[str, Any], where: str) -> T:
         raise ValueError(f"{where} must be an object of {cls.__name__} settings, {_got(values)}")
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
     extra = set(values) - set(fields)
+    moved: dict[str, str] = getattr(cls, "MOVED", {})
+    if extra & set(moved):
+        hints_ = "; ".join(f"{k} is now {where.split(': ')[-1]}.{moved[k]}" for k in sorted(extra & set(moved)))
+        raise ValueError(f"{where}: settings moved into nested objects: {hints_}")
     if extra:
         raise ValueError(f"{where} has unknown keys {sorted(map(str, extra))}; known: {sorted(fields)}")
     hints = typing.get_type_hints(cls)

@@ -12,9 +12,9 @@ import pytest
 mujoco = pytest.importorskip("mujoco")
 
 from pipeline.backends.humanoid_skeleton import build_skeleton  # noqa: E402
-from pipeline.backends.mujoco_humanoid import HumanoidConfig  # noqa: E402
+from pipeline.backends.mujoco_config import CostWeights, HumanoidConfig  # noqa: E402
 from pipeline.backends.mujoco_reference import build_scene  # noqa: E402
-from pipeline.backends.mujoco_tracking import CostWeights, Reference, TrackingCost  # noqa: E402
+from pipeline.backends.mujoco_tracking import Reference, TrackingCost  # noqa: E402
 from pipeline.schema.joints import COCO17_FEET  # noqa: E402
 from tests.backends.test_humanoid import _DEFAULT_LENGTHS  # noqa: E402
 
@@ -94,5 +94,5 @@ def test_clearance_prices_a_near_miss_and_leaves_the_simulation_alone() -> None:
 def test_physics_config_refuses_a_negative_clearance() -> None:
     from pipeline.stages.physics import PhysicsConfig
 
-    with pytest.raises(ValueError, match="collision_clearance_m must be >= 0"):
-        PhysicsConfig(collision_clearance_m=-0.01)
+    with pytest.raises(ValueError, match="CostWeights.collision_clearance_m must be >= 0"):
+        PhysicsConfig(solver={"weights": {"collision_clearance_m": -0.01}})

@@ -8,8 +8,8 @@ import pytest
 pytest.importorskip("mujoco")
 
 from pipeline.backends.humanoid_skeleton import _DEFAULT_LENGTHS, build_skeleton  # noqa: E402
+from pipeline.backends.mujoco_config import HumanoidConfig  # noqa: E402
 from pipeline.backends.mujoco_foot_sites import move_sites, planted_site_offsets  # noqa: E402
-from pipeline.backends.mujoco_humanoid import HumanoidConfig  # noqa: E402
 from pipeline.backends.mujoco_reference import build_scene  # noqa: E402
 from pipeline.schema.joints import COCO17_FEET  # noqa: E402
 from tests.backends.test_humanoid import _rest_keypoints  # noqa: E402

@@ -14,9 +14,9 @@ from pipeline.backends.humanoid_skeleton import (  # noqa: E402
     rest_site_positions,
     skeleton_from_keypoints,
 )
+from pipeline.backends.mujoco_config import HumanoidConfig  # noqa: E402
 from pipeline.backends.mujoco_humanoid import (  # noqa: E402
     DENSITY_KG_M3,
-    HumanoidConfig,
     build_scene_mjcf,
     load_model,
     scene_layout,
@@ -126,8 +126,8 @@ def test_floor_contact_parameters_govern_floor_contacts() -> None:
     from pipeline.stages.physics import PhysicsConfig
 
     default = load_model(build_scene_mjcf([skel], [0], 50.0))
-    np.testing.assert_allclose(default.geom_solref[floor], PhysicsConfig().floor_solref)
-    assert default.geom_margin[floor] == pytest.approx(PhysicsConfig().floor_margin_m)
+    np.testing.assert_allclose(default.geom_solref[floor], PhysicsConfig().humanoid.floor_solref)
+    assert default.geom_margin[floor] == pytest.approx(PhysicsConfig().humanoid.floor_margin_m)
 
 
 def test_random_servo_targets_stay_stable() -> None:

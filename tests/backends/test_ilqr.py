@@ -102,9 +102,9 @@ def test_adjoint_gradient_matches_finite_differences(substeps: int) -> None:
     rng = np.random.default_rng(0)
     U = rng.uniform(-3, 3, size=(8, 2))
     q0, v0 = np.array([0.3, -0.4]), np.array([0.5, 0.0])
-    cfg = ILQRConfig(deriv_every=1, fd_centered=True, substeps=substeps)
+    cfg = ILQRConfig(deriv_every=1, fd_centered=True)
     traj = rollout(model, data, cost, q0, v0, U, substeps=substeps)
-    g = trajectory_gradient(linearise(model, data, cost, traj, cfg, np.arange(2)))
+    g = trajectory_gradient(linearise(model, data, cost, traj, cfg, np.arange(2), substeps=substeps))
     eps = 1e-5
     for t, j in [(0, 0), (3, 1), (5, 0), (7, 1)]:
         up, um = U.copy(), U.copy()
@@ -142,8 +142,8 @@ def test_substep_offsets_are_applied_once_and_differentiated() -> None:
             cost.prepare(model, d, t, sub)
             mujoco.mj_step(model, d)
     np.testing.assert_allclose(traj.qpos[-1], d.qpos, atol=1e-12)
-    cfg = ILQRConfig(deriv_every=1, fd_centered=True, substeps=substeps)
-    g = trajectory_gradient(linearise(model, data, cost, traj, cfg, np.arange(2)))
+    cfg = ILQRConfig(deriv_every=1, fd_centered=True)
+    g = trajectory_gradient(linearise(model, data, cost, traj, cfg, np.arange(2), substeps=substeps))
     eps = 1e-5
     for t, j in [(0, 0), (2, 1), (5, 0)]:
         up, um = U.copy(), U.copy()
@@ -296,5 +296,5 @@ def test_reused_jacobians_are_the_previous_ones_with_fresh_cost_derivatives() ->
 
 
 def test_ilqr_config_refuses_zero_reuse() -> None:
-    with pytest.raises(ValueError, match="jacobian_reuse must be >= 1"):
+    with pytest.raises(ValueError, match="jacobian_reuse must be an integer >= 1"):
         ILQRConfig(jacobian_reuse=0)

@@ -9,7 +9,7 @@ import pytest
 mujoco = pytest.importorskip("mujoco")
 
 from pipeline.backends.humanoid_skeleton import _DEFAULT_LENGTHS, build_skeleton  # noqa: E402
-from pipeline.backends.mujoco_humanoid import HumanoidConfig  # noqa: E402
+from pipeline.backends.mujoco_config import HumanoidConfig  # noqa: E402
 from pipeline.backends.mujoco_reference import (  # noqa: E402
     build_reference,
     build_scene,
@@ -190,12 +190,12 @@ def test_arm_contacts_between_athletes_are_left_out_of_the_simulation_only() -> 
     assert 'body1="p0_left_forearm" body2="p1_right_forearm"' in scene.mjcf
     assert 'p0_left_forearm" body2="p1_' not in scene.probe_mjcf
     assert 'body1="p0_left_forearm" body2="p1_torso"' not in scene.mjcf
-    on = build_scene([skel, skel], [0, 1], FPS, COCO17_FEET, HumanoidConfig(inter_person_arm_contacts=True))
+    on = build_scene([skel, skel], [0, 1], FPS, COCO17_FEET, HumanoidConfig(arm_contacts="simulate"))
     assert 'p0_left_forearm" body2="p1_' not in on.mjcf
 
 
 def test_foot_contacts_between_athletes_are_left_out_of_the_simulation_only() -> None:
-    """With ``inter_person_foot_contacts`` off (the default) the simulated model excludes
+    """With ``foot_contacts`` "reference" (the default) the simulated model excludes
     the four foot-foot pairs of the two athletes and no other pair of a foot; the probe
     model keeps them all."""
     skel = build_skeleton(dict(_DEFAULT_LENGTHS))
@@ -207,16 +207,17 @@ def test_foot_contacts_between_athletes_are_left_out_of_the_simulation_only() ->
     assert 'body1="p0_left_foot" body2="p1_left_shin"' not in scene.mjcf
     feet = [line for line in scene.mjcf.splitlines() if "<exclude" in line and "_foot" in line and 'body1="p0_' in line and 'body2="p1_' in line]
     assert len(feet) == 4
-    on = build_scene([skel, skel], [0, 1], FPS, COCO17_FEET, HumanoidConfig(inter_person_foot_contacts=True))
+    on = build_scene([skel, skel], [0, 1], FPS, COCO17_FEET, HumanoidConfig(foot_contacts="simulate"))
     assert 'p0_left_foot" body2="p1_' not in on.mjcf
-    both = build_scene([skel, skel], [0, 1], FPS, COCO17_FEET, HumanoidConfig(inter_person_foot_contacts=True, inter_person_arm_contacts=True))
+    both = build_scene([skel, skel], [0, 1], FPS, COCO17_FEET, HumanoidConfig(foot_contacts="simulate", arm_contacts="simulate"))
     assert both.probe_mjcf == both.mjcf
 
 
-def test_humanoid_defaults_are_the_physics_stage_defaults() -> None:
-    from pipeline.stages.physics import PhysicsConfig, humanoid_config
+def test_the_physics_stage_nests_the_humanoid_settings_unchanged() -> None:
+    from pipeline.stages.physics import PhysicsConfig
 
-    assert humanoid_config(PhysicsConfig()) == HumanoidConfig()
+    assert PhysicsConfig().humanoid == HumanoidConfig()
+    assert PhysicsConfig(humanoid={"substeps": 4}).humanoid == HumanoidConfig(substeps=4)
 
 
 def test_reference_carries_its_schedule() -> None:

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 pytest.importorskip("mujoco")
 
 from pipeline.backends.humanoid_skeleton import _DEFAULT_LENGTHS, build_skeleton, rest_site_positions  # noqa: E402
+from pipeline.backends.mujoco_config import ReferenceConfig  # noqa: E402
 from pipeline.evaluate.physics_metrics import inter_person_penetration_mm  # noqa: E402
 from pipeline.schema.base import from_arrays, to_arrays  # noqa: E402
 from pipeline.schema.joints import COCO17_FEET  # noqa: E402
@@ -15,7 +18,7 @@ from pipeline.schema.keypoints3d import Keypoints3D  # noqa: E402
 from pipeline.schema.results import PhysicsResult  # noqa: E402
 from pipeline.stages.physics import PhysicsConfig, PhysicsInputs, run  # noqa: E402
 
-FAST = PhysicsConfig(window=5, commit=3, max_iter=2, n_alpha=3)
+FAST = PhysicsConfig(solver={"window": 5, "commit": 3, "ilqr": {"max_iter": 2, "n_alpha": 3}})
 
 
 def _facing_pair(gap_m: float, n_frames: int = 10) -> Keypoints3D:
@@ -66,7 +69,7 @@ def test_two_person_clip_ends_with_less_penetration() -> None:
     assert ground.any() and set(res.contact_person[ground].max(axis=1).tolist()) == {0, 1}
     # Tracking the overlapping reference as it is (no separation first): the
     # simulation's contacts alone still push the two bodies apart.
-    raw = run(PhysicsInputs(kp), PhysicsConfig(window=5, commit=3, max_iter=2, n_alpha=3, separate_reference=False))
+    raw = run(PhysicsInputs(kp), dataclasses.replace(FAST, reference=ReferenceConfig(separate=False)))
     pen_raw = inter_person_penetration_mm(raw.keypoints)
     assert pen_raw[-1] < 0.5 * pen_in[-1]
 
@@ -116,16 +119,16 @@ def test_body_penetration_measures_overlap_of_the_humanoids() -> None:
 
 def test_single_person_mode_and_config_checks() -> None:
     kp = _facing_pair(1.5, n_frames=6)
-    out = run(PhysicsInputs(kp), PhysicsConfig(mode="single", window=5, commit=3, max_iter=1, n_alpha=2, residual_root="off"))
+    out = run(PhysicsInputs(kp), PhysicsConfig(mode="single", solver={"window": 5, "commit": 3, "ilqr": {"max_iter": 1, "n_alpha": 2}}, residual={"mode": "off"}))
     assert out.stats["mode"] == "single" and out.stats["windows_with_residual"] == 0
     assert np.abs(out.result.residual_root_force).max() == 0.0
     # Far apart, standing still: the simulation stays close to the input.
     err = np.linalg.norm(out.keypoints.xyz_m - kp.xyz_m, axis=-1).mean()
     assert err < 0.05
     with pytest.raises(ValueError, match="commit"):
-        PhysicsConfig(window=4, commit=5)
+        PhysicsConfig(solver={"window": 4, "commit": 5})
     with pytest.raises(ValueError, match="ik_posture_weight"):
-        PhysicsConfig(ik_posture_weight=-1.0)
+        PhysicsConfig(reference={"ik_posture_weight": -1.0})
     empty = kp.replace(valid=np.zeros_like(kp.valid))
     with pytest.raises(ValueError, match="no person"):
         run(PhysicsInputs(empty), FAST)
@@ -135,36 +138,43 @@ def test_a_floor_stiffer_than_two_steps_is_reported() -> None:
     from pipeline.stages.physics import floor_timeconst_warning
 
     assert floor_timeconst_warning(PhysicsConfig(), 60.0) is None  # 5 ms against 2 x 2.08 ms
-    msg = floor_timeconst_warning(PhysicsConfig(substeps=4), 60.0)  # 2 x 4.17 ms > 5 ms
+    msg = floor_timeconst_warning(PhysicsConfig(humanoid={"substeps": 4}), 60.0)  # 2 x 4.17 ms > 5 ms
     assert msg is not None and "substeps >= 7" in msg and "0.00833" in msg
     assert floor_timeconst_warning(PhysicsConfig(), 25.0) is not None  # 2 x 5 ms at 25 fps
-    assert floor_timeconst_warning(PhysicsConfig(floor_solref=(-5000.0, -100.0)), 25.0) is None  # direct stiffness
+    assert floor_timeconst_warning(PhysicsConfig(humanoid={"floor_solref": (-5000.0, -100.0)}), 25.0) is None  # direct stiffness
 
 
 def test_floor_settings_reach_the_mjcf_and_bad_ones_are_refused() -> None:
-    from pipeline.stages.physics import humanoid_config
+    from pipeline.schema.config_types import build_config
 
-    cfg = PhysicsConfig(floor_solref=(0.03, 1.1), floor_solimp=(0.8, 0.9, 0.002), floor_margin_m=0.003, armature=0.1, floor_friction=1.5)
-    h = humanoid_config(cfg)
-    assert (h.floor_solref, h.floor_solimp, h.floor_margin_m, h.armature) == ((0.03, 1.1), (0.8, 0.9, 0.002), 0.003, 0.1)
-    assert h.friction == 1.5
+    where = "session.json: stage_config.physics"
+    cfg = build_config(
+        PhysicsConfig,
+        {"humanoid": {"floor_solref": [0.03, 1.1], "floor_solimp": [0.8, 0.9, 0.002], "floor_margin_m": 0.003, "armature": 0.1, "floor_friction": 1.5}},
+        where,
+    )
+    h = cfg.humanoid  # the object the scene builder takes, as given
+    assert (h.floor_solref, h.floor_solimp, h.floor_margin_m, h.armature, h.floor_friction) == ((0.03, 1.1), (0.8, 0.9, 0.002), 0.003, 0.1, 1.5)
     with pytest.raises(ValueError, match="floor_friction must be > 0"):
-        PhysicsConfig(floor_friction=0.0)
-    # JSON stage configs give lists: they are accepted as tuples.
-    assert humanoid_config(PhysicsConfig(floor_solref=[0.02, 1.0])).floor_solref == (0.02, 1.0)  # type: ignore[arg-type]
+        PhysicsConfig(humanoid={"floor_friction": 0.0})
     with pytest.raises(ValueError, match="floor_solref"):
-        PhysicsConfig(floor_solref=(0.02,))
+        PhysicsConfig(humanoid={"floor_solref": (0.02,)})
     with pytest.raises(ValueError, match="floor_solimp"):
-        PhysicsConfig(floor_solimp=(1.5, 0.9, 0.001))
+        PhysicsConfig(humanoid={"floor_solimp": (1.5, 0.9, 0.001)})
     with pytest.raises(ValueError, match="floor_margin_m"):
-        PhysicsConfig(floor_margin_m=-0.01)
+        PhysicsConfig(humanoid={"floor_margin_m": -0.01})
     # A wrong type from a Python caller names the field (it was a bare TypeError from "<").
-    with pytest.raises(ValueError, match=r"PhysicsConfig\.floor_margin_m must be float, got '0\.01' \(str\)"):
-        PhysicsConfig(floor_margin_m="0.01")  # type: ignore[arg-type]
-    with pytest.raises(ValueError, match=r"PhysicsConfig\.jacobian_reuse must be int"):
-        PhysicsConfig(jacobian_reuse=2.0)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"HumanoidConfig\.floor_margin_m must be float, got '0\.01' \(str\)"):
+        PhysicsConfig(humanoid={"floor_margin_m": "0.01"})
+    with pytest.raises(ValueError, match=r"ILQRConfig\.jacobian_reuse must be int"):
+        PhysicsConfig(solver={"ilqr": {"jacobian_reuse": 2.0}})
     with pytest.raises(ValueError, match="rollout_threads"):
-        PhysicsConfig(rollout_threads=0)
+        PhysicsConfig(solver={"ilqr": {"rollout_threads": 0}})
+    # A flat key of the settings before they were nested says where it went.
+    with pytest.raises(ValueError, match=r"w_pos is now stage_config\.physics\.solver\.weights\.w_pos"):
+        build_config(PhysicsConfig, {"w_pos": 50.0}, where)
+    with pytest.raises(ValueError, match=r"stage_config\.physics\.solver\.ilqr\.max_iter must be int"):
+        build_config(PhysicsConfig, {"solver": {"ilqr": {"max_iter": "x"}}}, where)
 
 
 def test_step_is_registered() -> None:
@@ -197,7 +207,7 @@ def test_step_execute_outputs_and_metrics() -> None:
     from pipeline.runner.steps.physics import SPEC
 
     ctx = _FakeCtx(_facing_pair(1.5, n_frames=8))
-    outputs = SPEC.execute(ctx, PhysicsConfig(window=5, commit=3, max_iter=1, n_alpha=2))  # type: ignore[arg-type]
+    outputs = SPEC.execute(ctx, PhysicsConfig(solver={"window": 5, "commit": 3, "ilqr": {"max_iter": 1, "n_alpha": 2}}))  # type: ignore[arg-type]
     assert set(outputs) == {"result", "keypoints3d", "scene.xml"}
     assert isinstance(outputs["result"], PhysicsResult) and outputs["keypoints3d"].source == "physics"
     assert ctx.metrics["windows"] == 2 and ctx.metrics["realtime_factor"] > 0
@@ -212,8 +222,8 @@ def test_a_window_that_diverges_even_from_the_reference_keeps_the_reference(monk
 
     real = mp._first_stable
 
-    def diverge_at_frame_3(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm):  # type: ignore[no-untyped-def]
-        return None if t0 == 3 else real(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm)
+    def diverge_at_frame_3(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps):  # type: ignore[no-untyped-def]
+        return None if t0 == 3 else real(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps)
 
     monkeypatch.setattr(mp, "_first_stable", diverge_at_frame_3)
     kp = _facing_pair(0.4)
@@ -247,6 +257,6 @@ def test_standing_still_stays_still() -> None:
         return float(np.sqrt(np.mean(out.result.qvel**2))), 1000.0 * max(slide)
 
     rms, slide_mm = shake(PhysicsConfig(skeleton="keypoints"))
-    rms_raw, slide_raw_mm = shake(PhysicsConfig(skeleton="keypoints", feedforward_smooth_frames=0.0))
+    rms_raw, slide_raw_mm = shake(PhysicsConfig(skeleton="keypoints", reference={"feedforward_smooth_frames": 0.0}))
     assert rms < 0.3 and slide_mm < 0.3
     assert rms_raw > 1.5 * rms and slide_raw_mm > 2.0 * slide_mm
