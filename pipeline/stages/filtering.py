@@ -49,11 +49,8 @@ class FilterConfig:
     kalman_max_gap_s: float = 1.0
     """Gaps up to this long are bridged by the Kalman smoother (longer ones stay invalid)."""
     jerk_std: float = 100.0
-    """Process noise: white jerk spectral density sqrt, m/s^3/sqrt(Hz). Larger follows fast
-    punches more closely, smaller smooths more. 100 beat 150 in both MPJPE and acceleration
-    error on every synthetic bout measured (seeds 0-2, 4 and 2 cameras; e.g. seed 0, 4
-    cameras: 13.25 vs 13.41 mm, 4.84 vs 5.24 mm/frame^2); 75 and 50 smooth more but cost
-    MPJPE with 4 cameras."""
+    """Process noise: white jerk spectral density sqrt (m/s³/√Hz, > 0). Larger follows fast
+    punches more closely, smaller smooths more."""
     meas_std_m: float = 0.012
     """Measurement noise of a triangulated joint of confidence 1 (scaled by 1/confidence)."""
     outlier_dist_m: float = 0.15

@@ -12,9 +12,9 @@ from pipeline.schema.config_types import check_field_types
 class FitConfig:
     """Body-model fit of every athlete over the whole sequence (paper section 3.3, eq. 3).
 
-    Loss weights default to the paper's (w1..w6 = 0.001, 1.0, 0.01, 0.001, 1e-4, 1e-4); the
-    terms we add (keypoint acceleration, joint limits, ground, landmark offsets) are documented
-    per field. Their defaults were tuned with ``cornerman bench fit`` on the synthetic bout.
+    Loss weights default to the paper's (w1..w6 = 0.001, 1.0, 0.01, 0.001, 1e-4, 1e-4) where
+    the paper has them; the terms we add are documented per field. Why each default is what
+    it is, and what was measured for it: ``docs/design/fit.md``.
     """
 
     body_model: Literal["anny", "smpl", "smplx"] = "anny"
@@ -47,8 +47,8 @@ class FitConfig:
     """w3: squared magnitude of the non-root bone rotations (rad^2)."""
 
     w_smooth: float = 1e-3
-    """w4: squared pose change plus squared whole-mesh vertex displacement between
-    consecutive frames (rad^2 + m^2 summed over all vertices; exact, via folded moments)."""
+    """w4: squared pose change plus squared whole-mesh vertex displacement between consecutive
+    frames (rad² + m² summed over the vertices), >= 0; per frame at ``reference_fps``."""
 
     reference_fps: float = 50.0
     """Frame rate (Hz, > 0) at which the per-frame temporal settings below (``w_smooth``,
@@ -58,122 +58,70 @@ class FitConfig:
     smoothed 16 times harder than a 50 fps one."""
 
     w_accel: float = 300.0
-    """Squared second difference of the fitted keypoints (m^2 per frame^2; ours, not in the
-    paper): damps frame-to-frame jitter without slowing the motion down like ``w_smooth``.
-    Was 500 before ``w_jerk``; see there."""
+    """Squared second difference of the fitted keypoints (m² per frame², at ``reference_fps``; ours):
+    damps jitter without slowing the motion like ``w_smooth``, >= 0."""
 
     accel_scale_m: float = 0.005
-    """Scale of a pseudo-Huber penalty on those second differences (m per frame^2): below it
-    the penalty is quadratic (jitter), above it linear (genuine fast accelerations such as
-    punches are penalised less). 0 = plain squared penalty."""
+    """Scale (m per frame², >= 0) of the pseudo-Huber on those second differences: quadratic below
+    (jitter), linear above (punches); 0 = plain squared penalty."""
 
     accel_whole_body: float = 0.3
-    """Weight, relative to ``w_accel``, of the whole-body part of the acceleration penalty:
-    above the feet, each keypoint's acceleration is split into the mean acceleration of
-    those keypoints (footwork, weight shifts) and the keypoint's own relative to it, which
-    keeps the full weight; ankles, heels and toes keep their plain penalty, so planted feet
-    stay still (``fit_common.accel_term``). 1 is the plain penalty in its quadratic regime.
-    Against the plain per-keypoint penalty on the synthetic bouts (4 cameras, seeds 0 / 1 / 2,
-    300 frames), MPJPE 10.15 → 9.59, 10.91 → 10.18, 11.04 → 10.24 mm and acceleration error
-    3.96 → 3.86, 3.92 → 3.80, 3.94 → 3.78 mm/f²; 2 cameras (seed 0) 23.5 → 22.9 mm; foot
-    skating unchanged (150 frames, seeds 0-3: 1.64 → 1.63 mm/frame). 0.2 and 0.5 are within
-    0.2 mm; splitting the feet too raised their skating by 20-40 %."""
+    """Weight (>= 0), relative to ``w_accel``, of the whole-body part of the acceleration penalty
+    above the feet (the mean acceleration of those keypoints); each keypoint's own part and
+    the feet keep the full weight, so planted feet stay still."""
 
     w_jerk: float = 150.0
-    """Squared third difference of the fitted keypoints (m^2 per frame^6; ours), weighted per
-    keypoint and frame by the re-weighted acceleration weights (``fit_common.jerk_term``), so
-    it acts only in the iterations after ``accel_adapt_after``: a smoother of higher order
-    that stops frame-to-frame noise more sharply and passes the slow motion. With it, the
-    acceleration penalty went from ``w_accel`` 500, ``accel_adapt_gain`` 4, re-weighting after
-    100 iterations to 300, 6, 90 (less smoothing before the re-weighting, as much after).
-    ``cornerman bench fit``, 4 cameras, 300 frames, MPJPE / acceleration error (mm, mm/f²)
-    against the filtered triangulation's: seed 0 9.51 / 3.16 → 9.16 / 3.01 (−27 → −30 %),
-    seed 1 10.24 / 3.31 → 9.83 / 3.13 (−27 → −31 %), seed 2 10.61 / 3.52 → 10.35 / 3.35
-    (−26 → −29 %); 2 cameras (seed 0) 24.16 / 4.53 → 23.41 / 4.43. Same iterations, same
-    time. On seed 0, 100 alone (the rest as before): 9.68 / 3.07; applied in every
-    iteration, unweighted: 30 → 9.87 / 3.10, 300 → 12.00 / 3.46."""
+    """Squared third difference of the fitted keypoints (m² per frame⁶; ours), weighted by the
+    re-weighted acceleration weights, so it acts after ``accel_adapt_after`` only, >= 0."""
 
     accel_adapt_after: int = 90
-    """Iterations of the full pass (``pose_iters``) after which the acceleration penalty is
-    re-weighted per keypoint and frame from the motion fitted so far; the remaining
-    iterations use those weights in place of the pseudo-Huber (``fit_common.
-    adaptive_accel_weights``). Keypoints at rest are then smoothed harder and keypoints in a
-    punch or a step less: a smoother whose acceleration variance changes over time. 0 (or
-    >= ``pose_iters``): never. Against 0 (``cornerman bench fit``, 4 cameras, 300 frames),
-    MPJPE / acceleration error: seed 0 9.59 / 3.86 → 9.19 / 3.59 mm, mm/f²; seed 1
-    10.18 / 3.80 → 9.67 / 3.51; seed 2 10.24 / 3.78 → 9.55 / 3.47; 2 cameras (seed 0)
-    22.90 / 4.92 → 23.08 / 4.75. Same number of iterations, so the same time. Re-weighting
-    twice (after 70 and 110) was no better (9.70 / 3.65, seed 0). 100 before ``w_jerk``."""
+    """L-BFGS iterations of the full pass after which the acceleration penalty is re-weighted per
+    keypoint and frame from the motion fitted so far (resting keypoints smoothed harder,
+    punches less); 0 or >= ``pose_iters``: never."""
 
     accel_adapt_scale_m: float = 0.002
-    """s of the re-weighting (m per frame²): the weight is ``accel_adapt_gain · s² / (s² +
-    m²)``, m the keypoint's RMS acceleration over ``accel_adapt_window`` frames either side.
-    Seed 0: 0.0015 → 3.79, 0.0025 → 3.57 mm/f²."""
+    """s of the re-weighting (m per frame², > 0): weight ``accel_adapt_gain · s² / (s² + m²)``,
+    m the keypoint's RMS acceleration over ``accel_adapt_window`` frames either side."""
 
     accel_adapt_gain: float = 6.0
-    """Weight, relative to ``w_accel``, of the re-weighted penalty at rest (m = 0). Seed 0:
-    3 (re-weighting after 120) → 3.67, 6 with a pseudo-Huber kept → 3.77 mm/f². 4 before
-    ``w_jerk`` (with ``w_accel`` 500: 2000 at rest, now 1800); with it (seeds 0 / 2, MPJPE /
-    accel): 5 → 9.07 / 3.02, 10.24 / 3.37; 6 → 9.16 / 3.01, 10.35 / 3.35."""
+    """Weight (> 0), relative to ``w_accel``, of the re-weighted penalty at rest (m = 0)."""
 
     accel_adapt_window: int = 2
-    """Frames either side over which m is averaged (0: that frame's acceleration alone, which
-    a noisy fit over-reads: 3.85 mm/f² with weights from a whole first fit, against 3.57 for 2)."""
+    """Frames (>= 0) either side over which m of the re-weighting is averaged."""
 
     calibrate_landmarks: bool = True
-    """Estimate one constant offset per person and keypoint, rigid in the keypoint's bone
-    frame: absorbs the difference between the detector's landmark definitions and anny's
-    regressor (e.g. where a "hip" or "shoulder" keypoint sits). The fitted keypoints include
-    it; the mesh does not."""
+    """Estimate one constant offset per person and keypoint, rigid in the keypoint's bone frame:
+    the difference between the detector's landmarks and the body model's (where a "hip"
+    sits). The fitted keypoints include it; the mesh does not."""
 
     refine_shape: bool = True
-    """Refine the shape jointly with the poses in the pose passes (after its bone-length
-    initialisation): lengths from noisy 3D are biased, the 2D views correct them."""
+    """Refine the shape jointly with the poses (after its bone-length initialisation): lengths
+    from noisy 3D are biased, the 2D views correct them."""
 
     landmark_step: float = 1.0
-    """anny only: scale of the landmark offsets among the L-BFGS variables, relative to
-    √frames (the number of frames they explain). They are optimised as ``landmark_step ·
-    √frames`` times their value; L-BFGS starts from a scalar Hessian, so its steps along
-    them grow as ``1 / landmark_step²``: below 1 the offsets follow the poses faster.
-    ``cornerman bench fit`` (4 cameras, 300 frames), 0.1 against 1: MPJPE seed 0 9.49 →
-    9.21 mm, seed 1 10.24 → 9.96 mm, 2 cameras 24.1 → 23.6 mm, acceleration error
-    unchanged. Not the default: the physics stage did worse on that fit (``cornerman bench
-    physics``, bouts 0-3, multi-person: skating 0.80 → 0.87 mm/frame, MPJPE 14.0 → 14.2 mm;
-    the demo bout's physics MPJPE 14.6 → 17.1 mm). Applied to the shape refinement too it
-    moved the shapes (seed 0: anny's gender 0.63 → 0.54, age 0.88 → 0.75) for 0.03 mm more
-    and bout 3's physics skating 0.90 → 1.38 mm/frame. Seed 0 with 0.05 / 0.2 / 0.33 / 3
-    (both): 9.42 / 9.31 / 9.36 / 11.12 mm."""
+    """anny only: scale (> 0) of the landmark offsets among the L-BFGS variables, relative to
+    √frames; below 1 the offsets follow the poses faster."""
 
     w_landmarks: float = 10.0
-    """Squared norm of those landmark offsets (m^2)."""
+    """Squared norm of the landmark offsets (m²), >= 0."""
 
     w_prior: float = 1e-4
-    """w5: statistical pose prior: sum over frames of the GMM's negative log-likelihood per
-    frame (nats, shifted so the most likely mode costs ~0; a pose s standard deviations off
-    along one axis costs ~s^2/2; anny). Unused when ``pose_prior_path`` is empty."""
+    """w5: the pose prior's negative log-likelihood per frame (nats, ~0 at the most likely mode),
+    >= 0; unused when ``pose_prior_path`` is empty."""
 
     w_limits: float = 1.0
-    """Soft anatomical joint limits: squared excess rotation beyond per-bone ranges (rad^2)."""
+    """Soft anatomical joint limits: squared excess rotation beyond per-bone ranges (rad²), >= 0."""
 
     w_ground: float = 1e4
-    """Squared depth below the ground plane z = 0 of the foot keypoints and of 48 sole
-    vertices of the mesh (m^2)."""
+    """Squared depth below the floor z = 0 of the foot keypoints and 48 sole vertices (m²), >= 0."""
 
     w_overlap: float = 3000.0
-    """Squared depth (m²) of the overlap between capsules of two different persons
-    (``fit_contacts.ProxyOverlap``: an average adult's volumes, in boxing gloves), summed
-    over the frames where both are present (ours, not in the paper; 0: off). In clinches
-    and exchanges an arm hidden behind the other athlete has little 2D evidence, and
-    without this term the fit let arms pass through each other and through the trunk.
-    ``cornerman bench fit`` style runs (300 frames, 4 cameras), seeds 0 / 1 / 2, without
-    -> with: deepest overlap 98.9 / 88.9 / 97.4 -> 4.7 / 5.8 / 4.4 mm, mean 5.9 / 6.2 /
-    5.0 -> 0.1 mm, MPJPE 9.46 / 9.89 / 9.75 -> 9.49 / 9.88 / 9.79 mm, acceleration error
-    unchanged (-25.8 / -25.7 / -26.7 -> -25.9 / -26.4 / -26.1 % against filtered
-    triangulation), fit time +10 %; 2 cameras (seed 0, weight 1000): 110 -> 11 mm, MPJPE
-    23.9 -> 23.6 mm."""
+    """Squared depth (m²) of the overlap between capsules of two persons (an average adult's
+    volumes, in boxing gloves), >= 0: arms hidden behind the other athlete do not pass
+    through him; 0: off."""
 
     gm_sigma_px: float = 25.0
-    """Scale of the Geman-McClure function: residuals much larger than this barely count."""
+    """Scale (px, > 0) of the Geman-McClure function: residuals much larger barely count."""
 
     robust_2d: Literal["gm", "l2"] = "gm"
     """Reprojection penalty: Geman-McClure (paper) or plain squared error (for comparison)."""
@@ -182,40 +130,26 @@ class FitConfig:
     """Include the reprojection term (the 3D term alone is much cheaper but less accurate)."""
 
     pose_prior_path: str = "builtin"
-    """GMM pose prior: ``"builtin"`` = the shipped prior fitted to the DeepMimic clips
-    (``pipeline/backends/data/anny_pose_gmm.npz``, zlib-licensed source motion; rebuild with
-    ``anny_prior_build.build_pose_prior``), ``""`` = none (joint limits only), otherwise a
-    user npz with ``means`` (K, D), ``precisions`` (K, D, D), ``weights`` (K,) and optionally
-    ``bone_names`` (D/3 bones of ``rig``; default: every non-root bone) and ``rig``."""
+    """GMM pose prior: ``"builtin"`` (shipped, fitted to the DeepMimic clips; rebuild with
+    ``cornerman priors build``), ``""`` = none, or a user npz with ``means``, ``precisions``,
+    ``weights`` (and optionally ``bone_names``, ``rig``)."""
 
     shape_iters: int = 60
     """L-BFGS iterations of the shape initialisation from bone lengths."""
 
     girth_prior: tuple[float, float] = (0.5, 0.5)
-    """anny ``muscle`` and ``weight`` phenotypes the shape is held near (0.5 = anny's
-    average adult). Keypoints give bone lengths, not girth: left free, these two moved
-    to their bounds to shave millimetres off the limb lengths (synthetic bout: muscle
-    0.00, weight 0.97-0.999, an obese body ~1.4x as wide as an average one, whose
-    overlaps in clinches the physics stage then had to undo). Raise muscle for
-    athletic builds when known."""
+    """anny ``muscle`` and ``weight`` phenotypes (in [0, 1]) the shape is held near (0.5 = average
+    adult): keypoints give bone lengths, not girth."""
 
     girth_prior_weight: float = 1.0
-    """Weight of ``(phenotype - girth_prior)²`` for muscle and weight in the shape
-    initialisation (the limb-length term is in m²; the other phenotypes keep 1e-4)."""
+    """Weight (>= 0) of ``(phenotype - girth_prior)²`` for muscle and weight in the shape
+    initialisation (the limb-length term is in m²)."""
 
     pose_iters_3d: int = 30
     """L-BFGS iterations of the first pose pass (3D term, priors and smoothness only)."""
 
     pose_iters: int = 180
-    """L-BFGS iterations of the full pass (eq. 3). 150 before: the 30 more all run with the
-    re-weighted acceleration and jerk terms (after ``accel_adapt_after`` 90). ``cornerman
-    bench fit``, 4 cameras, 300 frames, MPJPE mm / acceleration error against the filtered
-    triangulation's: seed 0 9.16 / −30.2 % → 9.02 / −31.6 %; seed 2 10.35 / −29.3 % →
-    10.12 / −30.1 %. 200 iterations: seed 0 8.95 / −32.0 %, seed 1 9.83 / −31.0 % → 9.62 /
-    −32.5 %, seed 2 10.00 / −30.5 % (re-weighting after 120 instead: 9.75 / −29.6 %, after
-    150 of 250: 9.47 / −29.5 %); ~35 % more pose time for 200, ~20 % for 180. On seed 2 at
-    150: ``w_jerk`` 80 / 250 −28.6 / −28.9 %, ``accel_adapt_gain`` 8 −28.8 %,
-    ``accel_adapt_scale_m`` 0.0025 −28.5 %, ``accel_adapt_window`` 3 −27.4 %."""
+    """L-BFGS iterations (>= 0) of the full pass (eq. 3)."""
 
     lbfgs_history: int = 100
     """L-BFGS history size (paper: 100)."""
@@ -228,17 +162,11 @@ class FitConfig:
     joints; other frames are filled by the smoothness term and marked invalid."""
 
     threads: int = 1
-    """torch intra-op threads during the fit (restored afterwards; 0: torch's default). The
-    tensors are small (frames x 36 bones), so extra threads gain little, and on a shared
-    2-core machine an oversubscribed OpenMP pool made the fit ~10x slower (measured again:
-    two fits at once with 2 threads each took 308 s, with 1 thread each 34 s)."""
+    """torch intra-op threads during the fit (0: torch's default); 1 is fastest on a shared
+    2-core machine (the tensors are small)."""
 
     precision: Literal["float32", "float64"] = "float32"
-    """anny only (SMPL fits stay float64): floating-point type of the fit's tensors. float32
-    is ~20 % faster (``cornerman bench fit``, 2 x 300 frames, 4 cameras: pose pass 22.2 s
-    against 27.4 s) with the same accuracy (synthetic bouts 0 and 1: MPJPE and acceleration
-    error within 0.05 mm and 0.05 mm/frame²); float64 reproduces fits made before float32
-    became the default."""
+    """anny only (SMPL stays float64): float32 (~20 % faster, same accuracy) or float64."""
 
     vposer_path: str = ""
     """SMPL/SMPL-X only: the user's VPoser v2 weights (``human_body_prior`` ``.ckpt`` or a

@@ -58,9 +58,8 @@ class TriangulateConfig:
     gives each 3D point's covariance, which weights it in the temporal filter."""
     point_covariance: bool = False
     """Weight each 3D point in the temporal filter by its full triangulation covariance
-    (from ``pixel_std_px`` and the view geometry) instead of an isotropic ``meas_std_m``.
-    Better with >= 3 well-spread cameras (synthetic bout, 4 cameras: 11 vs 12 mm MPJPE);
-    worse with two nearly opposite cameras, hence off by default."""
+    (from ``pixel_std_px`` and the view geometry) instead of an isotropic ``meas_std_m``:
+    better with >= 3 well-spread cameras, worse with two nearly opposite ones; off."""
     filter: FilterConfig = field(default_factory=FilterConfig)
     """Temporal filter (a dict in ``session.json`` is accepted)."""
     fill: FillConfig = field(default_factory=FillConfig)
