@@ -91,6 +91,8 @@ def test_keypoints3d_empty_and_validation() -> None:
         kp.replace(source="magic")
     with pytest.raises(ValueError, match="strictly increasing"):
         kp.replace(frame_indices=np.array([0, 2, 1, 3]))
+    # Artifacts written before the result names were unified call the raw result "triangulation".
+    assert kp.replace(source="triangulation").source == "raw"
 
 
 def test_association_rejects_unknown_ids() -> None:
