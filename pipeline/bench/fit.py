@@ -51,7 +51,7 @@ def run_bench(
     # that every row's fit time is the fit's.
     t0 = time.perf_counter()
     if cfg.body_model == "anny":
-        from pipeline.backends.anny_model import anny_fit_body
+        from pipeline.backends.anny.model import anny_fit_body
 
         anny_fit_body(cfg.rig, cfg.precision)
     load_s = time.perf_counter() - t0
@@ -83,7 +83,7 @@ def run_bench(
             fps_per_person=n_frames / max(total / max(res.bodyfit.person_ids.shape[0], 1), 1e-9),
             reproj_px=m.get("reproj_median_px", float("nan")),
         )
-        from pipeline.backends.anny_body import posed_mesh
+        from pipeline.backends.anny.body import posed_mesh
 
         bf = res.bodyfit
         mesh_z = [

@@ -178,7 +178,7 @@ def _set_fit_body_model(session: Path, body_model: str | None, body_model_path: 
     build_config(FitConfig, fit, f"{session / 'session.json'}: stage_config.fit")
     if fit.get("body_model", "anny") != "anny":
         # Check the files before saving: a wrong path must not end up in session.json.
-        from pipeline.backends.smpl_body import check_smpl_available
+        from pipeline.backends.smpl.body import check_smpl_available
 
         check_smpl_available(fit["body_model"], fit.get("body_model_path", ""))
     dataclasses.replace(cfg, stage_config={**cfg.stage_config, "fit": fit}).save(session)
@@ -437,8 +437,8 @@ def priors_build(
     """Rebuild anny's GMM pose prior from the DeepMimic clips in pybullet (the `priors`
     extra; a few minutes): retarget every clip to anny, fit the mixture."""
     _setup_logging(verbose)
-    from pipeline.backends.anny_prior_build import build_pose_prior
-    from pipeline.backends.anny_priors import BUILTIN_PRIOR
+    from pipeline.backends.anny.priors import BUILTIN_PRIOR
+    from pipeline.priors.build import build_pose_prior
 
     target = out or BUILTIN_PRIOR
     try:

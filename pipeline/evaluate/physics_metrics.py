@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.geometry.segments import point_weights, segment_distance
 from pipeline.schema.keypoints3d import Keypoints3D
 
 
@@ -28,7 +29,7 @@ class CapsuleProxy:
 
     A point is a joint name, ``"mid:a+b"`` (the midpoint of two joints) or
     ``"frac:a,b,t"`` (``a + t (b - a)``; ``t`` may lie outside [0, 1], e.g. past the
-    wrist). ``point_weights`` resolves them.
+    wrist). ``pipeline.geometry.segments.point_weights`` resolves them.
 
     The default is an average adult in boxing gloves, for athletes of 1.70-1.85 m,
     measured on anny's average body (``girth_prior`` 0.5, 0.5: what the fit assumes and
@@ -58,60 +59,12 @@ class CapsuleProxy:
     )
 
 
-def point_weights(name: str, joint_names: tuple[str, ...]) -> tuple[list[int], list[float]]:
-    """Joint indices and weights of a ``CapsuleProxy`` point: the point is the weighted
-    sum of those joints. Raises ``ValueError`` for a malformed point or unknown joint."""
-    try:
-        if name.startswith("mid:"):
-            a, b = name[4:].split("+")
-            return [joint_names.index(a), joint_names.index(b)], [0.5, 0.5]
-        if name.startswith("frac:"):
-            a, b, t = name[5:].split(",")
-            tf = float(t)
-            return [joint_names.index(a), joint_names.index(b)], [1.0 - tf, tf]
-        return [joint_names.index(name)], [1.0]
-    except ValueError as e:
-        raise ValueError(f"CapsuleProxy point {name!r}: {e} (joints: {list(joint_names)})") from e
-
-
 def _point(kp: Keypoints3D, name: str) -> tuple[np.ndarray, np.ndarray]:
     """(frames, persons, 3) positions and (frames, persons) validity of a proxy point."""
     idx, w = point_weights(name, kp.joint_names)
     pos = sum(wk * kp.xyz_m[:, :, i] for i, wk in zip(idx, w, strict=True))
     ok = np.logical_and.reduce([kp.valid[:, :, i] for i in idx])
     return np.asarray(pos), ok
-
-
-def segment_closest_params(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Parameters (s, t) in [0, 1] of the closest points ``p0 + s (p1 - p0)`` and
-    ``q0 + t (q1 - q0)`` of two segments (broadcast over leading dims)."""
-    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
-    a = np.sum(d1 * d1, -1)
-    e = np.sum(d2 * d2, -1)
-    f = np.sum(d2 * r, -1)
-    c = np.sum(d1 * r, -1)
-    b = np.sum(d1 * d2, -1)
-    eps = 1e-12
-    a_s, e_s = np.maximum(a, eps), np.maximum(e, eps)
-    denom = a * e - b * b
-    # Ericson, Real-Time Collision Detection §5.1.9, vectorised.
-    s = np.where(denom > eps * np.maximum(a * e, eps), np.clip((b * f - c * e) / np.maximum(denom, eps), 0.0, 1.0), 0.0)
-    s = np.where(e <= eps, np.clip(-c / a_s, 0.0, 1.0), s)
-    t = np.where(e > eps, (b * s + f) / e_s, 0.0)
-    s = np.where(t < 0.0, np.clip(-c / a_s, 0.0, 1.0), s)
-    s = np.where(t > 1.0, np.clip((b - c) / a_s, 0.0, 1.0), s)
-    t_c = np.clip(t, 0.0, 1.0)
-    s = np.where(a <= eps, 0.0, s)
-    t_c = np.where(a <= eps, np.where(e > eps, np.clip(f / e_s, 0.0, 1.0), 0.0), t_c)
-    return s, t_c
-
-
-def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
-    """Closest distance between segments [p0, p1] and [q0, q1] (broadcast over leading dims)."""
-    s, t = segment_closest_params(p0, p1, q0, q1)
-    cp = p0 + (p1 - p0) * s[..., None]
-    cq = q0 + (q1 - q0) * t[..., None]
-    return np.linalg.norm(cp - cq, axis=-1)
 
 
 def inter_person_penetration_mm(kp: Keypoints3D, proxy: CapsuleProxy = CapsuleProxy()) -> np.ndarray:

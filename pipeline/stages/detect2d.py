@@ -100,8 +100,8 @@ class Models:
     """The loaded detector and keypoint model of a ``Detect2DConfig``."""
 
     def __init__(self, cfg: Detect2DConfig) -> None:
-        from pipeline.backends.onnx_detectors import DetectorParams, make_detector
-        from pipeline.backends.onnx_pose import PoseParams, make_pose_estimator
+        from pipeline.backends.onnx.detectors import DetectorParams, make_detector
+        from pipeline.backends.onnx.pose import PoseParams, make_pose_estimator
         from pipeline.registry import get_model, resolve_model
 
         det_info, pose_info = get_model(cfg.detector), get_model(cfg.pose_model)
@@ -134,7 +134,7 @@ def detect_boxes(
 
 def process_frames(images: list[np.ndarray], models: Models, cfg: Detect2DConfig) -> list[FrameResult]:
     """Detect people and estimate their keypoints on a batch of BGR frames."""
-    from pipeline.backends.onnx_pose import estimate_many
+    from pipeline.backends.onnx.pose import estimate_many
 
     dets = detect_boxes(images, models, cfg)
     boxes = [b for b, _ in dets]

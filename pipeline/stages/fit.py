@@ -1,7 +1,7 @@
 """Stage ``fit``: a parametric body model per athlete from 2D and 3D keypoints (paper 3.3).
 
 Pure: ``run(keypoints3d, tracks, association, rig, cfg) -> FitResult``. The heavy work
-(torch) happens in ``pipeline.backends.anny_fit`` (anny) or ``pipeline.backends.smpl_fit``
+(torch) happens in ``pipeline.backends.anny.fit`` (anny) or ``pipeline.backends.smpl.fit``
 (SMPL/SMPL-X, the user's model files), imported when ``run`` is called.
 """
 
@@ -164,15 +164,15 @@ def run(
     t_start = time.perf_counter()
     cfg = cfg.at_rate(keypoints3d.fps)
     if cfg.body_model == "anny":
-        from pipeline.backends.anny_fit import fit_anny
-        from pipeline.backends.anny_model import anny_fit_body
+        from pipeline.backends.anny.fit import fit_anny
+        from pipeline.backends.anny.model import anny_fit_body
 
         body = anny_fit_body(cfg.rig, cfg.precision)  # cached: no copy of the model per run
         bone_names, rig_name, shape0 = body.bone_names, cfg.rig, np.full(6, 0.5)
         fit_backend: Callable[..., Any] = functools.partial(fit_anny, cfg=cfg, body=body)
     else:  # SMPL / SMPL-X: ValueError naming the path when files or smplx are missing
-        from pipeline.backends.smpl_body import N_BETAS, smpl_body
-        from pipeline.backends.smpl_fit import fit_smpl
+        from pipeline.backends.smpl.body import N_BETAS, smpl_body
+        from pipeline.backends.smpl.fit import fit_smpl
 
         sbody = smpl_body(cfg.body_model, cfg.body_model_path, cfg.smpl_gender)
         bone_names, rig_name, shape0 = sbody.joint_names, sbody.rig, np.zeros(N_BETAS)
@@ -183,7 +183,7 @@ def run(
     fit_persons = [p for p in range(len(inputs)) if present[:, p].sum() >= 2]
     nf, npers, nj = keypoints3d.n_frames, keypoints3d.n_persons, len(COCO17_FEET)
 
-    from pipeline.backends.fit_common import PersonObservations, report_lbfgs_progress
+    from pipeline.backends.fitting.common import PersonObservations, report_lbfgs_progress
 
     nb = len(bone_names)
     shape = np.tile(shape0, (npers, 1))

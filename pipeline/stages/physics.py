@@ -2,7 +2,7 @@
 
 ``run(inputs, cfg)`` builds one humanoid per person — from the fitted anny body
 (``cfg.skeleton == "bodyfit"``: anny's main skeleton, convex-hull or capsule geoms cut
-from the body mesh, see ``pipeline.backends.anny_humanoid``) or sized from the fitted
+from the body mesh, see ``pipeline.backends.anny.humanoid``) or sized from the fitted
 3D joints (``"keypoints"``: capsules from median bone lengths) — puts all
 persons on one ground plane, computes a kinematic reference by inverse kinematics
 and optimises servo targets with receding-horizon iLQR so that the simulated
@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import numpy as np
 
-from pipeline.backends.mujoco_config import (
+from pipeline.backends.mujoco.config import (
     HumanoidConfig,
     ReferenceConfig,
     ResidualConfig,
@@ -44,8 +44,8 @@ from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import BodyFit, PhysicsResult
 
 if TYPE_CHECKING:
-    from pipeline.backends.humanoid_skeleton import Skeleton
-    from pipeline.backends.mujoco_reference import Scene
+    from pipeline.backends.mujoco.reference import Scene
+    from pipeline.backends.mujoco.skeleton import Skeleton
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +53,7 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class PhysicsConfig:
     """Settings of the physics stage: the stage's own, then one object per part, each
-    defined once in ``pipeline.backends.mujoco_config`` and taken as is by the backends.
+    defined once in ``pipeline.backends.mujoco.config`` and taken as is by the backends.
 
     In ``session.json``: ``{"physics": {"mode": "single", "solver": {"weights": {"w_pos": 50}}}}``.
     """
@@ -136,7 +136,7 @@ def build_skeletons(
 ) -> tuple[list[Skeleton], str]:
     """One rest skeleton per keypoint person row, and which builder was used
     (``"bodyfit"`` or ``"keypoints"``; see ``PhysicsConfig.skeleton``)."""
-    from pipeline.backends.humanoid_skeleton import skeleton_from_keypoints
+    from pipeline.backends.mujoco.skeleton import skeleton_from_keypoints
 
     pids = [int(kp.person_ids[r]) for r in rows]
     why = ""
@@ -152,7 +152,7 @@ def build_skeletons(
         if lacking:
             why = f"BodyFit has no valid fit of persons {lacking}"
     if not why:
-        from pipeline.backends.anny_humanoid import skeleton_from_bodyfit
+        from pipeline.backends.anny.humanoid import skeleton_from_bodyfit
 
         assert bodyfit is not None
         fit_ids = [int(i) for i in bodyfit.person_ids]
@@ -184,7 +184,7 @@ def posed_humanoids(
     ``person_ids`` restricts the persons (default: all with motion). Raises
     ``ValueError`` (prefixed with ``what``) when fewer than ``min_persons`` remain or
     one of them is not in ``body_keypoints``."""
-    from pipeline.backends import mujoco_physics as mp
+    from pipeline.backends.mujoco import physics as mp
 
     rows = _select_persons(kp)
     moving = [int(kp.person_ids[r]) for r in rows]
@@ -233,7 +233,7 @@ def body_penetration_mm(
 def penetration_of_pose(scene: Scene, qpos: np.ndarray) -> np.ndarray:
     """(frames,) deepest overlap in mm between persons of ``scene`` posed at ``qpos``
     (frames, nq), e.g. from ``posed_humanoids``."""
-    from pipeline.backends import mujoco_physics as mp
+    from pipeline.backends.mujoco import physics as mp
 
     contacts, _ = mp.contacts_and_sites(scene, qpos, np.zeros((qpos.shape[0], scene.model.nv)))
     return mp.deepest_inter_person_mm(contacts, qpos.shape[0])
@@ -289,7 +289,7 @@ def _run(
     cfg: PhysicsConfig,
     progress: Callable[[int, int, str], None] | None,
 ) -> PhysicsOutput:
-    from pipeline.backends import mujoco_physics as mp
+    from pipeline.backends.mujoco import physics as mp
 
     kp = inputs.keypoints
     if cfg.max_frames and kp.n_frames > cfg.max_frames:
@@ -308,7 +308,7 @@ def _run(
     sole_lift = max(hcfg.floor_margin_m - 0.001, 0.0)
     foot_offsets_mm = 0.0
     if rcfg.flat_feet and rcfg.calibrate_foot_sites:
-        from pipeline.backends.mujoco_foot_sites import move_sites, planted_site_offsets
+        from pipeline.backends.mujoco.foot_sites import move_sites, planted_site_offsets
 
         offs = planted_site_offsets(mp.build_scene(skels, pids, kp.fps, kp.joint_names, hcfg, res_act), kp, rows, sole_lift_m=sole_lift)
         skels = [move_sites(sk, o) for sk, o in zip(skels, offs, strict=True)]

@@ -4,7 +4,7 @@ A free-floating body moves only through external forces. For a kinematic motion
 (triangulation, fit, ground truth or the physics output itself) this module poses the
 physics stage's humanoids on it by inverse kinematics, runs MuJoCo's inverse dynamics,
 and gives the foot sites near the floor as much of the needed root wrench as a
-friction cone allows (``mujoco_reference.contact_inverse_dynamics``). What is left is
+friction cone allows (``mujoco.reference.contact_inverse_dynamics``). What is left is
 the *needed residual*: the "hand of God" force and torque at the pelvis that the
 motion requires on top of its ground contacts.
 
@@ -26,7 +26,7 @@ from pipeline.schema.results import BodyFit
 from pipeline.stages.physics import PhysicsConfig, posed_humanoids
 
 if TYPE_CHECKING:
-    from pipeline.backends.mujoco_reference import Scene
+    from pipeline.backends.mujoco.reference import Scene
 
 __all__ = ["NeededResidual", "needed_residual", "residual_of_pose"]
 
@@ -87,7 +87,7 @@ def _check_frames(n_frames: int) -> None:
 def residual_of_pose(scene: Scene, qpos: np.ndarray, fps: float) -> NeededResidual:
     """``needed_residual`` of ``scene``'s persons posed at ``qpos`` (frames, nq) at
     ``fps``, e.g. from ``posed_humanoids``."""
-    from pipeline.backends import mujoco_physics as mp
+    from pipeline.backends.mujoco import physics as mp
 
     _check_frames(qpos.shape[0])
     m = scene.model

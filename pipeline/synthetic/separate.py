@@ -40,12 +40,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from pipeline.evaluate.physics_metrics import (
-    CapsuleProxy,
-    point_weights,
-    segment_closest_params,
-    segment_distance,
-)
+from pipeline.evaluate.physics_metrics import CapsuleProxy
+from pipeline.geometry.segments import point_weights, segment_closest_params, segment_distance
 from pipeline.schema.joints import COCO17_FEET, PCP_LIMBS
 
 _RIGID_GROUPS: tuple[tuple[str, ...], ...] = (
@@ -59,7 +55,7 @@ _LIMBS: tuple[tuple[str, str], ...] = tuple(b for b in PCP_LIMBS if b[0].split("
 
 
 def _end_joints(name: str, names: tuple[str, ...]) -> tuple[list[int], np.ndarray]:
-    """Joints and weights of a capsule end (``physics_metrics.point_weights``)."""
+    """Joints and weights of a capsule end (``geometry.segments.point_weights``)."""
     idx, w = point_weights(name, names)
     return idx, np.asarray(w, dtype=float)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from pipeline.backends.mujoco_humanoid import SceneLayout
+from pipeline.backends.mujoco.humanoid import SceneLayout
 
 
 def assert_random_servo_targets_stay_stable(

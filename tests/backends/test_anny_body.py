@@ -12,9 +12,9 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("anny")
 
-from pipeline.backends.anny_body import RestMesh, posed_mesh, rest_mesh  # noqa: E402
-from pipeline.backends.anny_fk import forward_kinematics, keypoints_from_bones, skin_vertices  # noqa: E402
-from pipeline.backends.anny_model import DEFAULT_RIG, AnnyBody, anny_body  # noqa: E402
+from pipeline.backends.anny.body import RestMesh, posed_mesh, rest_mesh  # noqa: E402
+from pipeline.backends.anny.fk import forward_kinematics, keypoints_from_bones, skin_vertices  # noqa: E402
+from pipeline.backends.anny.model import DEFAULT_RIG, AnnyBody, anny_body  # noqa: E402
 from pipeline.schema import COCO17_FEET, BodyFit  # noqa: E402
 
 
@@ -149,8 +149,8 @@ def test_gradients_are_finite_at_zero_pose(body: AnnyBody) -> None:
 
 
 def test_joint_limits_penalise_knee_hyperextension_not_flexion(body: AnnyBody) -> None:
-    from pipeline.backends.anny_body import rest_mesh
-    from pipeline.backends.anny_priors import joint_limit_penalty, joint_limit_tables
+    from pipeline.backends.anny.body import rest_mesh
+    from pipeline.backends.anny.priors import joint_limit_penalty, joint_limit_tables
 
     rm = rest_mesh()
     frames, lo, hi = (
@@ -167,7 +167,7 @@ def test_joint_limits_penalise_knee_hyperextension_not_flexion(body: AnnyBody) -
 
 
 def test_gmm_prior_fit_save_load(tmp_path) -> None:  # noqa: ANN001
-    from pipeline.backends.anny_priors import GMMPrior
+    from pipeline.backends.anny.priors import GMMPrior
 
     rng = np.random.default_rng(0)
     centres = np.array([[0.5, 0.0, 0.0], [-0.5, 0.3, 0.0]])

@@ -8,8 +8,8 @@ import pytest
 mujoco = pytest.importorskip("mujoco")
 pytest.importorskip("anny")
 
-from pipeline.backends.anny_body import bone_names, fitted_keypoints, rest_mesh  # noqa: E402
-from pipeline.backends.anny_humanoid import (  # noqa: E402
+from pipeline.backends.anny.body import bone_names, fitted_keypoints, rest_mesh  # noqa: E402
+from pipeline.backends.anny.humanoid import (  # noqa: E402
     BODY_BONES,
     MIN_BODY_MASS_KG,
     R_ANNY_TO_PHYS,
@@ -19,13 +19,13 @@ from pipeline.backends.anny_humanoid import (  # noqa: E402
     qpos_from_bodyfit,
     skeleton_from_bodyfit,
 )
-from pipeline.backends.anny_model import DEFAULT_RIG, anny_body  # noqa: E402
-from pipeline.backends.anny_synthetic import make_anny_motion  # noqa: E402
-from pipeline.backends.humanoid_skeleton import rest_site_positions  # noqa: E402
-from pipeline.backends.mujoco_humanoid import DENSITY_KG_M3, build_scene_mjcf, load_model, scene_layout  # noqa: E402
+from pipeline.backends.anny.model import DEFAULT_RIG, anny_body  # noqa: E402
+from pipeline.backends.mujoco.humanoid import DENSITY_KG_M3, build_scene_mjcf, load_model, scene_layout  # noqa: E402
+from pipeline.backends.mujoco.skeleton import rest_site_positions  # noqa: E402
 from pipeline.schema.joints import COCO17_FEET  # noqa: E402
 from pipeline.schema.keypoints3d import Keypoints3D  # noqa: E402
 from pipeline.schema.results import BodyFit  # noqa: E402
+from pipeline.synthetic.anny_motion import make_anny_motion  # noqa: E402
 from tests.backends.humanoid_checks import assert_random_servo_targets_stay_stable  # noqa: E402
 
 N_FRAMES = 30

@@ -19,14 +19,14 @@ pytest.importorskip("anny")
 
 import torch  # noqa: E402
 
-from pipeline.backends.anny_model import DEFAULT_RIG, anny_body  # noqa: E402
-from pipeline.backends.anny_prior_build import PRIOR_BONES  # noqa: E402
-from pipeline.backends.anny_priors import (  # noqa: E402
+from pipeline.backends.anny.model import DEFAULT_RIG, anny_body  # noqa: E402
+from pipeline.backends.anny.priors import (  # noqa: E402
     BUILTIN_PRIOR,
     GMMPrior,
     joint_limit_tables,
     load_pose_prior,
 )
+from pipeline.priors.build import PRIOR_BONES  # noqa: E402
 
 SAMPLE = Path(__file__).parent / "data" / "anny_deepmimic_poses.npz"
 HELD_OUT = "punch"
@@ -50,7 +50,7 @@ def sample() -> tuple[np.ndarray, np.ndarray]:
 def _random_poses_within_limits(body, n: int, seed: int) -> np.ndarray:  # noqa: ANN001
     """(n, len(PRIOR_BONES) * 3) poses uniform within the joint limits (local components
     clipped to +-1.5 rad), in the prior's representation."""
-    from pipeline.backends.anny_body import bone_tails
+    from pipeline.backends.anny.body import bone_tails
 
     with torch.no_grad():
         c = body.shape_coeffs(torch.full((1, 6), 0.5, dtype=torch.float64))
@@ -141,9 +141,9 @@ def _projections(n_views: int) -> np.ndarray:
 def test_fit_with_prior_not_worse_than_without(body) -> None:  # noqa: ANN001
     from dataclasses import replace
 
-    from pipeline.backends.anny_fit import PersonObservations, fit_anny
-    from pipeline.backends.anny_synthetic import make_anny_motion
+    from pipeline.backends.anny.fit import PersonObservations, fit_anny
     from pipeline.stages.fit_config import FitConfig
+    from pipeline.synthetic.anny_motion import make_anny_motion
 
     motion = make_anny_motion(30, seed=3, body=body)
     rng = np.random.default_rng(0)
@@ -167,7 +167,7 @@ def test_fit_with_prior_not_worse_than_without(body) -> None:  # noqa: ANN001
 
 @needs_pybullet
 def test_deepmimic_keypoints_and_mirror() -> None:
-    from pipeline.backends.anny_prior_build import clip_keypoints, load_clip, load_skeleton, mirror_keypoints
+    from pipeline.priors.build import clip_keypoints, load_clip, load_skeleton, mirror_keypoints
     from pipeline.schema.joints import COCO17_FEET
 
     kp = clip_keypoints(load_clip("walk"), load_skeleton())
@@ -184,21 +184,21 @@ def test_deepmimic_keypoints_and_mirror() -> None:
 
 
 def test_build_without_pybullet_fails_clearly(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
-    from pipeline.backends import anny_prior_build
+    from pipeline.priors import build as prior_build
 
     real = importlib.util.find_spec
     monkeypatch.setattr(
-        anny_prior_build.importlib.util,
+        prior_build.importlib.util,
         "find_spec",
         lambda name, *a: None if name == "pybullet_data" else real(name, *a),
     )
     with pytest.raises(ImportError, match=r"pip install 'cornerman\[priors\]'"):
-        anny_prior_build.build_pose_prior(tmp_path / "prior.npz")
+        prior_build.build_pose_prior(tmp_path / "prior.npz")
 
 
 def test_prior_file_with_nan_is_refused(tmp_path: Path) -> None:
     """A corrupt prior (NaN means) names the file and the problem instead of NaN losses."""
-    from pipeline.backends.anny_priors import GMMPrior
+    from pipeline.backends.anny.priors import GMMPrior
 
     path = tmp_path / "nan_prior.npz"
     d = 6

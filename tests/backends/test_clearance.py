@@ -11,10 +11,10 @@ import pytest
 
 mujoco = pytest.importorskip("mujoco")
 
-from pipeline.backends.humanoid_skeleton import build_skeleton  # noqa: E402
-from pipeline.backends.mujoco_config import CostWeights, HumanoidConfig  # noqa: E402
-from pipeline.backends.mujoco_reference import build_scene  # noqa: E402
-from pipeline.backends.mujoco_tracking import Reference, TrackingCost  # noqa: E402
+from pipeline.backends.mujoco.config import CostWeights, HumanoidConfig  # noqa: E402
+from pipeline.backends.mujoco.reference import build_scene  # noqa: E402
+from pipeline.backends.mujoco.skeleton import build_skeleton  # noqa: E402
+from pipeline.backends.mujoco.tracking import Reference, TrackingCost  # noqa: E402
 from pipeline.schema.joints import COCO17_FEET  # noqa: E402
 from tests.backends.test_humanoid import _DEFAULT_LENGTHS  # noqa: E402
 

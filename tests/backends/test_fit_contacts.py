@@ -7,13 +7,14 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from pipeline.backends.fit_contacts import ProxyOverlap, _segment_distance  # noqa: E402
-from pipeline.evaluate.physics_metrics import inter_person_penetration_mm, segment_distance  # noqa: E402
+from pipeline.backends.fitting.contacts import ProxyOverlap, _segment_distance  # noqa: E402
+from pipeline.evaluate.physics_metrics import inter_person_penetration_mm  # noqa: E402
+from pipeline.geometry.segments import segment_distance  # noqa: E402
 from pipeline.schema.joints import COCO17_FEET  # noqa: E402
 from pipeline.schema.keypoints3d import Keypoints3D  # noqa: E402
 
 
-def test_segment_distance_matches_the_numpy_metric() -> None:
+def test_segment_distance_matches_the_numpy_geometry() -> None:
     rng = np.random.default_rng(0)
     p0, p1, q0, q1 = (rng.normal(size=(500, 3)) for _ in range(4))
     q1[:20] = q0[:20]  # degenerate second segments (points)

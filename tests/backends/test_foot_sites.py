@@ -1,4 +1,4 @@
-"""Foot sites calibrated onto the planted keypoints (``mujoco_foot_sites``)."""
+"""Foot sites calibrated onto the planted keypoints (``backends.mujoco.foot_sites``)."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import pytest
 
 pytest.importorskip("mujoco")
 
-from pipeline.backends.humanoid_skeleton import _DEFAULT_LENGTHS, build_skeleton  # noqa: E402
-from pipeline.backends.mujoco_config import HumanoidConfig  # noqa: E402
-from pipeline.backends.mujoco_foot_sites import move_sites, planted_site_offsets  # noqa: E402
-from pipeline.backends.mujoco_reference import build_scene  # noqa: E402
+from pipeline.backends.mujoco.config import HumanoidConfig  # noqa: E402
+from pipeline.backends.mujoco.foot_sites import move_sites, planted_site_offsets  # noqa: E402
+from pipeline.backends.mujoco.reference import build_scene  # noqa: E402
+from pipeline.backends.mujoco.skeleton import _DEFAULT_LENGTHS, build_skeleton  # noqa: E402
 from pipeline.schema.joints import COCO17_FEET  # noqa: E402
 from tests.backends.test_humanoid import _rest_keypoints  # noqa: E402
 

@@ -7,19 +7,19 @@ import pytest
 
 mujoco = pytest.importorskip("mujoco")
 
-from pipeline.backends.humanoid_skeleton import (  # noqa: E402
+from pipeline.backends.mujoco.config import HumanoidConfig  # noqa: E402
+from pipeline.backends.mujoco.humanoid import (  # noqa: E402
+    DENSITY_KG_M3,
+    build_scene_mjcf,
+    load_model,
+    scene_layout,
+)
+from pipeline.backends.mujoco.skeleton import (  # noqa: E402
     _DEFAULT_LENGTHS,
     build_skeleton,
     measure_lengths,
     rest_site_positions,
     skeleton_from_keypoints,
-)
-from pipeline.backends.mujoco_config import HumanoidConfig  # noqa: E402
-from pipeline.backends.mujoco_humanoid import (  # noqa: E402
-    DENSITY_KG_M3,
-    build_scene_mjcf,
-    load_model,
-    scene_layout,
 )
 from pipeline.schema.joints import COCO17_FEET  # noqa: E402
 from pipeline.schema.keypoints3d import Keypoints3D  # noqa: E402
@@ -140,7 +140,7 @@ def test_random_servo_targets_stay_stable() -> None:
 
 
 def test_sole_height_is_median_lowest_foot_point() -> None:
-    from pipeline.backends.humanoid_skeleton import sole_height_m
+    from pipeline.backends.mujoco.skeleton import sole_height_m
 
     kp = _rest_keypoints(1.0, n_frames=9)
     xyz = kp.xyz_m.copy()
@@ -153,7 +153,7 @@ def test_sole_height_is_median_lowest_foot_point() -> None:
 def test_contact_inverse_dynamics_feet_carry_the_weight() -> None:
     """Standing still: the feet take the body weight, the residual root wrench is
     ~0; with no foot low enough to touch the floor the root needs ~1 body weight."""
-    from pipeline.backends.mujoco_reference import contact_inverse_dynamics
+    from pipeline.backends.mujoco.reference import contact_inverse_dynamics
 
     skel = build_skeleton(dict(_DEFAULT_LENGTHS))
     model = load_model(build_scene_mjcf([skel], [0], 50.0))
@@ -173,7 +173,7 @@ def test_contact_inverse_dynamics_feet_carry_the_weight() -> None:
 
 
 def test_plant_feet_holds_planted_foot_still() -> None:
-    from pipeline.backends.mujoco_reference import plant_feet
+    from pipeline.backends.mujoco.reference import plant_feet
 
     names = ("left_heel", "left_big_toe", "left_small_toe", "right_heel", "right_big_toe", "right_small_toe")
     F = 30
@@ -196,7 +196,7 @@ def test_plant_feet_catches_the_landing_frame() -> None:
     """A foot that swings in low and lands at frame 10 (still from there on): the
     5-frame smoothed speed finds the plant two frames late; the one-frame extension
     starts it a frame earlier, not before the touchdown, held at the stance position."""
-    from pipeline.backends.mujoco_reference import plant_feet
+    from pipeline.backends.mujoco.reference import plant_feet
 
     names = ("left_heel", "left_big_toe", "left_small_toe")
     F, land, fps = 30, 10, 60.0
@@ -219,8 +219,8 @@ def test_plant_feet_catches_the_landing_frame() -> None:
 def test_separate_reference_removes_overlap_keeping_feet() -> None:
     """Two athletes 0.16 m apart (bodies overlap by centimetres): every frame of the
     separated reference is contact-free, and legs/root height barely move."""
-    from pipeline.backends.mujoco_reference import build_scene, separate_reference
-    from pipeline.backends.mujoco_tracking import collision_depths
+    from pipeline.backends.mujoco.reference import build_scene, separate_reference
+    from pipeline.backends.mujoco.tracking import collision_depths
 
     skel = build_skeleton(dict(_DEFAULT_LENGTHS))
     scene = build_scene([skel, skel], [0, 1], 50.0, COCO17_FEET, HumanoidConfig())

@@ -8,8 +8,8 @@ import pytest
 
 mujoco = pytest.importorskip("mujoco")
 
-from pipeline.backends.mujoco_ilqr import ILQRConfig, linearise, optimise, rollout, trajectory_gradient  # noqa: E402
-from pipeline.backends.mujoco_tracking import collision_depths  # noqa: E402
+from pipeline.backends.mujoco.ilqr import ILQRConfig, linearise, optimise, rollout, trajectory_gradient  # noqa: E402
+from pipeline.backends.mujoco.tracking import collision_depths  # noqa: E402
 
 ARM_XML = """
 <mujoco>

@@ -7,8 +7,8 @@ import pytest
 
 pytest.importorskip("onnxruntime")
 
-from pipeline.backends.onnx_common import letterbox  # noqa: E402
-from pipeline.backends.onnx_detectors import (  # noqa: E402
+from pipeline.backends.onnx.common import letterbox  # noqa: E402
+from pipeline.backends.onnx.detectors import (  # noqa: E402
     DetectorParams,
     RtmdetDetector,
     YoloxDetector,

@@ -8,7 +8,7 @@ import pytest
 
 pytest.importorskip("onnxruntime")
 
-from pipeline.backends.onnx_pose import (  # noqa: E402
+from pipeline.backends.onnx.pose import (  # noqa: E402
     BLAZEPOSE_TO_COCO17_FEET,
     BlazePoseEstimator,
     MoveNetEstimator,
@@ -82,7 +82,7 @@ def test_blazepose_mapping_names() -> None:
 
 @pytest.fixture
 def frame_and_box(models_dir: Path, test_data_dir: Path) -> tuple[np.ndarray, np.ndarray]:
-    from pipeline.backends.onnx_detectors import DetectorParams, YoloxDetector
+    from pipeline.backends.onnx.detectors import DetectorParams, YoloxDetector
     from pipeline.io.video import iter_frames
 
     img = next(iter(iter_frames(test_data_dir / "pose2sim_multiperson" / "videos" / "cam01.mp4", 0, 1)))[1]
@@ -157,7 +157,7 @@ class _FakeSession:
 @pytest.mark.parametrize("kind", ["heatmap", "simcc"])
 def test_mmpose_style_estimators_map_back_to_image(kind: str) -> None:
     """Full top-down path (crop → outputs → decode → image) with synthetic model outputs."""
-    from pipeline.backends.onnx_pose import HeatmapEstimator, SimCCEstimator, crop_transform_rect
+    from pipeline.backends.onnx.pose import HeatmapEstimator, SimCCEstimator, crop_transform_rect
 
     rng = np.random.default_rng(0)
     H, W = 256, 192

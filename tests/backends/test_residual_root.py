@@ -8,10 +8,10 @@ import pytest
 
 mujoco = pytest.importorskip("mujoco")
 
-from pipeline.backends.humanoid_skeleton import skeleton_from_keypoints  # noqa: E402
-from pipeline.backends.mujoco_config import CostWeights, HumanoidConfig  # noqa: E402
-from pipeline.backends.mujoco_reference import build_reference, build_scene  # noqa: E402
-from pipeline.backends.mujoco_tracking import TrackingCost  # noqa: E402
+from pipeline.backends.mujoco.config import CostWeights, HumanoidConfig  # noqa: E402
+from pipeline.backends.mujoco.reference import build_reference, build_scene  # noqa: E402
+from pipeline.backends.mujoco.skeleton import skeleton_from_keypoints  # noqa: E402
+from pipeline.backends.mujoco.tracking import TrackingCost  # noqa: E402
 from tests.backends.test_humanoid import _rest_keypoints  # noqa: E402
 
 SATURATION_RAD = 0.03

@@ -1,4 +1,4 @@
-"""The physics stage's reference between video frames (``mujoco_schedule``), its flat
+"""The physics stage's reference between video frames (``backends.mujoco.schedule``), its flat
 planted feet, the separation of two athletes, gloves and the arm-arm contact switch."""
 
 from __future__ import annotations
@@ -8,21 +8,21 @@ import pytest
 
 mujoco = pytest.importorskip("mujoco")
 
-from pipeline.backends.humanoid_skeleton import _DEFAULT_LENGTHS, build_skeleton  # noqa: E402
-from pipeline.backends.mujoco_config import HumanoidConfig  # noqa: E402
-from pipeline.backends.mujoco_reference import (  # noqa: E402
+from pipeline.backends.mujoco.config import HumanoidConfig  # noqa: E402
+from pipeline.backends.mujoco.reference import (  # noqa: E402
     build_reference,
     build_scene,
     inverse_kinematics,
     separate_reference,
     site_targets,
 )
-from pipeline.backends.mujoco_schedule import (  # noqa: E402
+from pipeline.backends.mujoco.schedule import (  # noqa: E402
     contact_inverse_dynamics_point,
     foot_site_ids,
     servo_schedule,
     tangent_path,
 )
+from pipeline.backends.mujoco.skeleton import _DEFAULT_LENGTHS, build_skeleton  # noqa: E402
 from pipeline.schema.joints import COCO17_FEET  # noqa: E402
 from tests.backends.test_humanoid import _rest_keypoints  # noqa: E402
 from tests.stages.test_physics import _facing_pair  # noqa: E402

@@ -28,10 +28,10 @@ sparse = pytest.importorskip("scipy.sparse")
 
 import roma  # noqa: E402
 
-from pipeline.backends import smpl_body as sb  # noqa: E402
-from pipeline.backends.fit_common import PersonObservations  # noqa: E402
-from pipeline.backends.smpl_fit import fit_smpl, load_gmm_prior  # noqa: E402
-from pipeline.backends.vposer import VPoser, load_vposer  # noqa: E402
+from pipeline.backends.fitting.common import PersonObservations  # noqa: E402
+from pipeline.backends.smpl import body as sb  # noqa: E402
+from pipeline.backends.smpl.fit import fit_smpl, load_gmm_prior  # noqa: E402
+from pipeline.backends.smpl.vposer import VPoser, load_vposer  # noqa: E402
 
 FPS = 50.0
 N_VERTS = {"smpl": 6890, "smplx": 10475}

@@ -10,10 +10,9 @@ from pipeline.evaluate.physics_metrics import (
     foot_contact_from_height,
     inter_person_penetration_mm,
     physics_metrics,
-    point_weights,
-    segment_distance,
     stance_edge_steps,
 )
+from pipeline.geometry.segments import point_weights, segment_distance
 from pipeline.schema.joints import COCO17_FEET
 from pipeline.schema.keypoints3d import Keypoints3D
 

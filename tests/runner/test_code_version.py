@@ -22,9 +22,9 @@ def _fresh_caches() -> None:
 
 def test_the_closure_reaches_the_lazily_imported_backends() -> None:
     physics = cv.module_closure("pipeline.runner.steps.physics")
-    assert {"pipeline.stages.physics", "pipeline.backends.mujoco_ilqr", "pipeline.backends.mujoco_tracking"} <= set(physics)
+    assert {"pipeline.stages.physics", "pipeline.backends.mujoco.ilqr", "pipeline.backends.mujoco.tracking"} <= set(physics)
     fit = cv.module_closure("pipeline.runner.steps.fit")
-    assert "pipeline.backends.anny_fit" in fit and "pipeline.backends.mujoco_ilqr" not in fit
+    assert "pipeline.backends.anny.fit" in fit and "pipeline.backends.mujoco.ilqr" not in fit
     assert len({cv.stage_code_hash(s) for s in STAGE_ORDER}) == len(STAGE_ORDER)
 
 
@@ -43,13 +43,13 @@ def _patched_reader(monkeypatch: pytest.MonkeyPatch, module: str, edit: str) -> 
 
 def test_code_changes_and_only_code_changes_change_the_version(monkeypatch: pytest.MonkeyPatch) -> None:
     before = {s: cv.stage_code_hash(s) for s in ("triangulate", "physics")}
-    _patched_reader(monkeypatch, "pipeline.backends.mujoco_ilqr", "\n# a comment\n")
+    _patched_reader(monkeypatch, "pipeline.backends.mujoco.ilqr", "\n# a comment\n")
     assert cv.stage_code_hash("physics") == before["physics"]
-    _patched_reader(monkeypatch, "pipeline.backends.mujoco_ilqr", '\n\ndef _f() -> None:\n    """A docstring."""\n')
+    _patched_reader(monkeypatch, "pipeline.backends.mujoco.ilqr", '\n\ndef _f() -> None:\n    """A docstring."""\n')
     with_doc = cv.stage_code_hash("physics")
-    _patched_reader(monkeypatch, "pipeline.backends.mujoco_ilqr", '\n\ndef _f() -> None:\n    """Other words."""\n')
+    _patched_reader(monkeypatch, "pipeline.backends.mujoco.ilqr", '\n\ndef _f() -> None:\n    """Other words."""\n')
     assert cv.stage_code_hash("physics") == with_doc  # docstrings do not count
-    _patched_reader(monkeypatch, "pipeline.backends.mujoco_ilqr", "\nMU_INIT_SCALE = 2.0\n")
+    _patched_reader(monkeypatch, "pipeline.backends.mujoco.ilqr", "\nMU_INIT_SCALE = 2.0\n")
     assert cv.stage_code_hash("physics") != before["physics"]  # code does
     assert cv.stage_code_hash("triangulate") == before["triangulate"]  # not its module
 

@@ -35,7 +35,7 @@ def test_no_setting_is_defined_twice_in_a_stage_configuration() -> None:
 
 
 def test_the_physics_stage_nests_the_backend_classes_themselves() -> None:
-    from pipeline.backends import mujoco_config as mc
+    from pipeline.backends.mujoco import config as mc
     from pipeline.stages.physics import PhysicsConfig
 
     hints = typing.get_type_hints(PhysicsConfig)

@@ -19,9 +19,9 @@ from tests.conftest import fit_stage_inputs, make_rig
 pytest.importorskip("torch")
 pytest.importorskip("anny")
 
-from pipeline.backends.anny_fk import forward_kinematics  # noqa: E402
-from pipeline.backends.anny_model import anny_body  # noqa: E402
-from pipeline.backends.anny_synthetic import AnnyMotion, make_anny_motion  # noqa: E402
+from pipeline.backends.anny.fk import forward_kinematics  # noqa: E402
+from pipeline.backends.anny.model import anny_body  # noqa: E402
+from pipeline.synthetic.anny_motion import AnnyMotion, make_anny_motion  # noqa: E402
 
 FPS = 50.0
 
@@ -79,9 +79,9 @@ def test_recovers_known_shape_and_pose_from_clean_keypoints(motion: AnnyMotion) 
 def test_shape_keeps_girth_near_its_prior(motion: AnnyMotion) -> None:
     """Bone lengths do not tell girth: muscle and weight stay at ``girth_prior`` while the
     length-giving phenotypes fit the limbs (free, they ran to their bounds: an obese body)."""
-    from pipeline.backends.anny_fit_init import fit_shapes
-    from pipeline.backends.anny_model import PHENOTYPE_LABELS
-    from pipeline.backends.fit_common import PersonObservations
+    from pipeline.backends.anny.fit_init import fit_shapes
+    from pipeline.backends.anny.model import PHENOTYPE_LABELS
+    from pipeline.backends.fitting.common import PersonObservations
 
     obs = PersonObservations(
         kp3d_m=motion.keypoints_m, w3d=np.ones(motion.keypoints_m.shape[:2]),
@@ -216,7 +216,7 @@ def test_config_validation() -> None:
 def test_accel_term_splits_whole_body_and_relative_acceleration() -> None:
     import torch
 
-    from pipeline.backends.fit_common import FOOT_KEYPOINTS, accel_term
+    from pipeline.backends.fitting.common import FOOT_KEYPOINTS, accel_term
 
     assert [COCO17_FEET[i] for i in FOOT_KEYPOINTS] == [
         "left_ankle", "right_ankle", "left_big_toe", "left_small_toe", "left_heel",
@@ -257,7 +257,7 @@ def test_adaptive_accel_weights_follow_local_acceleration() -> None:
     m the RMS acceleration over the window; they replace the pseudo-Huber in accel_term."""
     import torch
 
-    from pipeline.backends.fit_common import accel_term, adaptive_accel_weights
+    from pipeline.backends.fitting.common import accel_term, adaptive_accel_weights
 
     nj, nf = len(COCO17_FEET), 12
     x = torch.zeros(2, nf, nj, 3, dtype=torch.float64)
@@ -294,8 +294,8 @@ def test_pose_passes_reweight_after_the_configured_iterations(monkeypatch: pytes
     with weights from the motion so far; 0 keeps the pseudo-Huber throughout."""
     import torch
 
-    import pipeline.backends.fit_common as fc
-    from pipeline.backends.fit_common import accel_term, run_pose_passes
+    import pipeline.backends.fitting.common as fc
+    from pipeline.backends.fitting.common import accel_term, run_pose_passes
 
     budgets: list[int] = []  # iteration budget of every L-BFGS run
     real_lbfgs = fc.run_lbfgs
@@ -380,7 +380,7 @@ def test_fit_step_runs_in_the_runner(tmp_path: Path) -> None:
 
 
 def test_user_pose_prior_is_loaded_and_used(tmp_path: Path, motion: AnnyMotion) -> None:
-    from pipeline.backends.anny_priors import pose_prior_from_poses
+    from pipeline.backends.anny.priors import pose_prior_from_poses
 
     more = make_anny_motion(60, fps=FPS, seed=5)
     prior = pose_prior_from_poses(more.pose_aa[:, None], np.ones((60, 1), dtype=bool), n_components=2)
@@ -399,7 +399,7 @@ def test_jerk_term_weights_third_differences_and_acts_only_when_reweighted() -> 
     only with re-weighted acceleration weights (after ``accel_adapt_after``)."""
     import torch
 
-    from pipeline.backends.fit_common import jerk_term, sequence_terms
+    from pipeline.backends.fitting.common import jerk_term, sequence_terms
 
     nj, nf = len(COCO17_FEET), 8
     t = torch.arange(nf, dtype=torch.float64)
@@ -435,7 +435,7 @@ def test_jerk_term_weights_third_differences_and_acts_only_when_reweighted() -> 
 def test_temporal_weights_follow_the_frame_rate() -> None:
     """The same motion costs the same at any frame rate: a k-th difference of a sampled
     motion scales as fps^-k, so the weights scale as fps^(2k) and the robust scales as fps^-k."""
-    from pipeline.backends.fit_common import accel_term
+    from pipeline.backends.fitting.common import accel_term
 
     torch = pytest.importorskip("torch")
     cfg = FitConfig(accel_whole_body=1.0)

@@ -29,7 +29,7 @@ def test_first_fit_announces_the_anny_cache_build(tmp_path: Path, monkeypatch: p
 
 def test_the_fit_step_and_the_cache_check_do_not_import_torch() -> None:
     code = (
-        "import sys, pipeline.runner.steps.fit, pipeline.backends.anny_cache as c\n"
+        "import sys, pipeline.runner.steps.fit, pipeline.backends.anny.cache as c\n"
         "c.anny_cache_built()\n"
         "print('torch' in sys.modules)\n"
     )
@@ -40,7 +40,7 @@ def test_the_fit_step_and_the_cache_check_do_not_import_torch() -> None:
 def _small_fit_inputs():  # noqa: ANN202
     pytest.importorskip("torch")
     pytest.importorskip("anny")
-    from pipeline.backends.anny_synthetic import make_anny_motion
+    from pipeline.synthetic.anny_motion import make_anny_motion
 
     rig = make_rig(3, fps=50.0, phase_rad=0.4)
     motion = make_anny_motion(6, fps=50.0, seed=3)

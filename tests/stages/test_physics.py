@@ -9,8 +9,8 @@ import pytest
 
 pytest.importorskip("mujoco")
 
-from pipeline.backends.humanoid_skeleton import _DEFAULT_LENGTHS, build_skeleton, rest_site_positions  # noqa: E402
-from pipeline.backends.mujoco_config import ReferenceConfig  # noqa: E402
+from pipeline.backends.mujoco.config import ReferenceConfig  # noqa: E402
+from pipeline.backends.mujoco.skeleton import _DEFAULT_LENGTHS, build_skeleton, rest_site_positions  # noqa: E402
 from pipeline.evaluate.physics_metrics import inter_person_penetration_mm  # noqa: E402
 from pipeline.schema.base import from_arrays, to_arrays  # noqa: E402
 from pipeline.schema.joints import COCO17_FEET  # noqa: E402
@@ -218,7 +218,7 @@ def test_a_window_that_diverges_even_from_the_reference_keeps_the_reference(monk
     """The job survives a window the simulation cannot run (it used to raise): those
     frames hold the separated reference, the stats count them, and later windows
     simulate again from there."""
-    import pipeline.backends.mujoco_physics as mp
+    import pipeline.backends.mujoco.physics as mp
 
     real = mp._first_stable
 

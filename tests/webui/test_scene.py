@@ -77,7 +77,7 @@ def test_physics_geoms_bad_xml_falls_back(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_body_meshes_are_posed_in_the_background() -> None:
-    from pipeline.backends.anny_body import DEFAULT_RIG, bone_names
+    from pipeline.backends.anny.body import DEFAULT_RIG, bone_names
     from pipeline.schema.results import BodyFit
     from webui.scene.body import BodyMeshCache
 

@@ -1,6 +1,6 @@
 """Body meshes of the fit stage, posed for every frame in a background thread.
 
-``pipeline.backends.anny_body.posed_mesh`` imports torch, so it is imported lazily in
+``pipeline.backends.anny.body.posed_mesh`` imports torch, so it is imported lazily in
 the viewer process only. Until a person's meshes are ready (or when the backend is
 unavailable) the viewer shows the skeleton only.
 """
@@ -57,9 +57,9 @@ class BodyMeshCache:
     def _run(self) -> None:
         try:
             if self.bodyfit.body_model == "anny":
-                from pipeline.backends.anny_body import posed_mesh
+                from pipeline.backends.anny.body import posed_mesh
             else:
-                from pipeline.backends.smpl_body import posed_mesh as smpl_mesh
+                from pipeline.backends.smpl.body import posed_mesh as smpl_mesh
 
                 def posed_mesh(
                     bodyfit: BodyFit, person_index: int, frames: np.ndarray, decimate: bool = True

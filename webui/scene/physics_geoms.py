@@ -1,51 +1,45 @@
 """Physics humanoids' collision geoms per frame, from ``physics/scene.xml`` + ``physics/result.npz``.
 
-MuJoCo is imported lazily, in the viewer process only (``webui.launcher`` and the server
-never import this module). The MJCF is compiled once; for a frame, ``qpos`` is set and
-``mj_kinematics`` gives every geom's world pose; each person's geoms are merged into one
-mesh whose faces never change, so the viewer only streams new vertices per frame.
+MuJoCo runs behind ``pipeline.backends.mujoco.geoms`` (imported lazily, in the viewer
+process only: ``webui.launcher`` and the server never import this module). The MJCF is
+compiled once; for a frame, the backend gives every geom's world pose at that ``qpos``;
+each person's geoms are merged into one mesh whose faces never change, so the viewer only
+streams new vertices per frame.
 """
 
 from __future__ import annotations
 
 import logging
-import threading
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from pipeline.schema.results import PhysicsResult
 from webui.scene.meshes import box_mesh, capsule_mesh, cylinder_mesh, ellipsoid_mesh, merge_meshes
 
+if TYPE_CHECKING:
+    from pipeline.backends.mujoco.geoms import GeomShape
+
 log = logging.getLogger(__name__)
 
-# mjtGeom values (stable MuJoCo ABI): plane 0, hfield 1, sphere 2, capsule 3, ellipsoid 4, cylinder 5, box 6, mesh 7.
-_SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX, _MESH = 2, 3, 4, 5, 6, 7
 
-
-def _mesh_template(model: Any, g: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """A mesh geom's vertices (in the geom frame: MuJoCo re-centres meshes on compile) and faces."""
-    mid = int(model.geom_dataid[g])
-    if mid < 0:
-        return None
-    va, vn = int(model.mesh_vertadr[mid]), int(model.mesh_vertnum[mid])
-    fa, fn = int(model.mesh_faceadr[mid]), int(model.mesh_facenum[mid])
-    return np.array(model.mesh_vert[va : va + vn], dtype=np.float64), np.array(model.mesh_face[fa : fa + fn], dtype=np.int64)
-
-
-def _geom_template(gtype: int, size: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    if gtype == _SPHERE:
+def _geom_template(geom: GeomShape) -> tuple[np.ndarray, np.ndarray] | None:
+    """A geom's vertices in its own frame and faces; None for what is not drawn."""
+    size = geom.size
+    if geom.kind == "sphere":
         return capsule_mesh(float(size[0]), 0.0)
-    if gtype == _CAPSULE:
+    if geom.kind == "capsule":
         return capsule_mesh(float(size[0]), float(size[1]))
-    if gtype == _ELLIPSOID:
+    if geom.kind == "ellipsoid":
         return ellipsoid_mesh(size)
-    if gtype == _CYLINDER:
+    if geom.kind == "cylinder":
         return cylinder_mesh(float(size[0]), float(size[1]))
-    if gtype == _BOX:
+    if geom.kind == "box":
         return box_mesh(size)
-    return None  # planes (the floor) and height fields are not part of a humanoid; meshes: _mesh_template
+    if geom.kind == "mesh" and geom.mesh_verts is not None and geom.mesh_faces is not None:
+        return geom.mesh_verts, geom.mesh_faces
+    return None  # planes (the floor) and height fields are not part of a humanoid
 
 
 class PhysicsGeoms:
@@ -56,34 +50,26 @@ class PhysicsGeoms:
     """
 
     def __init__(self, xml_path: Path, result: PhysicsResult) -> None:
-        import mujoco  # heavy: only in the viewer process, only when a physics result exists
+        # heavy (mujoco): only in the viewer process, only when a physics result exists
+        from pipeline.backends.mujoco.geoms import SceneKinematics
 
-        self._mj = mujoco
-        try:
-            self.model = mujoco.MjModel.from_xml_path(str(xml_path))
-        except ValueError as e:
-            raise ValueError(f"{xml_path}: MJCF does not compile: {e}") from e
-        if self.model.nq != result.qpos.shape[1]:
-            raise ValueError(f"{xml_path}: model nq={self.model.nq} but physics/result.npz qpos has {result.qpos.shape[1]}")
-        self.data = mujoco.MjData(self.model)
+        self.scene = SceneKinematics(xml_path)
+        if self.scene.nq != result.qpos.shape[1]:
+            raise ValueError(f"{xml_path}: model nq={self.scene.nq} but physics/result.npz qpos has {result.qpos.shape[1]}")
         self.result = result
-        self._lock = threading.Lock()
         self._geoms: dict[int, list[tuple[int, np.ndarray]]] = {}  # pid -> [(geom id, local verts)]
         self.faces: dict[int, np.ndarray] = {}
-        m = self.model
         for pid in result.person_ids.tolist():
             pre = f"p{int(pid)}_"
             parts, ids = [], []
-            for g in range(m.ngeom):
-                body_name = m.body(int(m.geom_bodyid[g])).name
-                if not body_name.startswith(pre):
+            for geom in self.scene.geoms:
+                if not geom.body_name.startswith(pre):
                     continue
-                gtype = int(m.geom_type[g])
-                tpl = _mesh_template(m, g) if gtype == _MESH else _geom_template(gtype, np.asarray(m.geom_size[g]))
+                tpl = _geom_template(geom)
                 if tpl is None:
                     continue
                 parts.append(tpl)
-                ids.append(g)
+                ids.append(geom.geom_id)
             if not parts:
                 log.warning("%s: no geoms for person %d (no bodies named %s*)", xml_path, pid, pre)
                 continue
@@ -99,11 +85,7 @@ class PhysicsGeoms:
         geoms = self._geoms.get(int(person_id))
         if geoms is None or not 0 <= row < self.result.qpos.shape[0]:
             return None
-        with self._lock:
-            self.data.qpos[:] = self.result.qpos[row]
-            self._mj.mj_kinematics(self.model, self.data)
-            xpos = np.array(self.data.geom_xpos)
-            xmat = np.array(self.data.geom_xmat).reshape(-1, 3, 3)
+        xpos, xmat = self.scene.geom_poses(self.result.qpos[row])
         verts = np.concatenate([v @ xmat[g].T + xpos[g] for g, v in geoms])
         return verts.astype(np.float32), self.faces[int(person_id)]
 

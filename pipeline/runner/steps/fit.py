@@ -21,7 +21,7 @@ def _loading_message(cfg: FitConfig) -> str:
     ~0.8 GB and takes a minute or two, which must not look like a hang at 0 %."""
     if cfg.body_model != "anny":
         return f"loading the {cfg.body_model} body model"
-    from pipeline.backends.anny_cache import CACHE_SIZE_GB, anny_cache_built, anny_cache_dir
+    from pipeline.backends.anny.cache import CACHE_SIZE_GB, anny_cache_built, anny_cache_dir
 
     if anny_cache_built():
         return "loading the anny body model"

@@ -1,0 +1,415 @@
+"""iLQR trajectory optimisation on a MuJoCo model (Tassa et al. 2012; MJPC's planner).
+
+State x = (qpos, qvel) in tangent coordinates (nx = 2·nv, no activations), control
+u = ``data.ctrl`` restricted to the ``active`` actuators (the others stay at the
+nominal trajectory's values).
+
+One iteration:
+1. *Linearise* along the nominal rollout: dynamics Jacobians A, B by finite
+   differences (``mujoco.mjd_transitionFD``), every ``deriv_every`` steps with
+   linear interpolation in between; cost gradients/Gauss–Newton Hessians from the
+   ``Cost``.
+2. *Backward pass*: Riccati recursion with Levenberg–Marquardt regularisation μ on
+   Q_uu (raised ×``mu_up`` on a non-PD Q_uu or a failed line search, lowered on
+   success).
+3. *Forward pass*: closed-loop rollouts u = ū + K (x ⊖ x̄) + α k for log-spaced
+   α ∈ [α_min, 1]; the lowest total cost is accepted if it is below the nominal's,
+   so the cost decreases monotonically.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Protocol
+
+import mujoco
+import numpy as np
+
+from pipeline.backends.mujoco.config import ILQRConfig
+
+log = logging.getLogger(__name__)
+
+MAX_SPEED = 100.0
+"""|qvel| (m/s or rad/s) above which a rollout counts as diverged."""
+
+
+class UnstableRollout(ValueError):
+    """The initial control sequence of an optimisation diverges in simulation."""
+
+
+class Cost(Protocol):
+    """Running cost l(x_t, u_t, t) and terminal cost l_T(x_T).
+
+    ``data`` holds the state x_t after ``mj_forward`` (positions, contacts, site
+    poses valid). ``u`` is the full ``ctrl`` vector (nu,). Derivatives are with
+    respect to the tangent state (2·nv) and the full control (nu).
+    """
+
+    def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, sub: int = 0) -> None:
+        """Before MuJoCo substep ``sub`` of control step t: set state-dependent external
+        inputs (``xfrc_applied``) and, optionally, time-dependent offsets of the
+        controls: the caller sets ``data.ctrl`` to u_t before every call, so an offset
+        added here lasts one substep."""
+        ...
+
+    def value(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, u: np.ndarray | None) -> float: ...
+
+    def derivatives(
+        self, model: mujoco.MjModel, data: mujoco.MjData, t: int, u: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(lx (nx,), lu (nu,), lxx (nx, nx), luu (nu, nu)); lu/luu zero-size when u is None."""
+        ...
+
+
+@dataclass
+class Trajectory:
+    """A rollout: H controls, H+1 states, and what the cost/derivatives need."""
+
+    qpos: np.ndarray  # (H+1, nq)
+    qvel: np.ndarray  # (H+1, nv)
+    ctrl: np.ndarray  # (H, nu)
+    warmstart: np.ndarray  # (H+1, nv) qacc_warmstart at each state
+    actuator_force: np.ndarray  # (H, nu)
+    costs: np.ndarray  # (H+1,)
+    stable: bool
+
+    @property
+    def total(self) -> float:
+        return float(self.costs.sum()) if self.stable else float("inf")
+
+
+def _set_state(model: mujoco.MjModel, data: mujoco.MjData, qpos: np.ndarray, qvel: np.ndarray, warm: np.ndarray | None) -> None:
+    data.qpos[:] = qpos
+    data.qvel[:] = qvel
+    if warm is not None:
+        data.qacc_warmstart[:] = warm
+
+
+def state_diff(model: mujoco.MjModel, qpos_a: np.ndarray, qvel_a: np.ndarray, qpos_b: np.ndarray, qvel_b: np.ndarray) -> np.ndarray:
+    """Tangent difference x_a ⊖ x_b (2·nv,)."""
+    dq = np.zeros(model.nv)
+    mujoco.mj_differentiatePos(model, dq, 1.0, qpos_b, qpos_a)
+    return np.concatenate([dq, qvel_a - qvel_b])
+
+
+def rollout(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    cost: Cost,
+    qpos0: np.ndarray,
+    qvel0: np.ndarray,
+    ctrl: np.ndarray,
+    t0: int = 0,
+    nominal: Trajectory | None = None,
+    K: np.ndarray | None = None,
+    k: np.ndarray | None = None,
+    alpha: float = 0.0,
+    active: np.ndarray | None = None,
+    warm0: np.ndarray | None = None,
+    substeps: int = 1,
+) -> Trajectory:
+    """Simulate H = len(ctrl) control steps (each ``substeps`` MuJoCo steps with the
+    control held) from (qpos0, qvel0).
+
+    Open loop when ``nominal`` is None; otherwise closed loop
+    u_t = ctrl_t + K_t (x_t ⊖ x̄_t) + α k_t on the ``active`` controls (clamped to
+    ``ctrlrange`` by MuJoCo). Costs are evaluated at each state; ``t0`` offsets the
+    time index passed to the cost. An unstable step (NaN, |qvel| > ``MAX_SPEED`` or
+    MuJoCo's bad-QACC warning) marks the trajectory unstable (total cost = inf).
+    """
+    H = ctrl.shape[0]
+    nq, nv, nu = model.nq, model.nv, model.nu
+    out = Trajectory(
+        qpos=np.zeros((H + 1, nq)),
+        qvel=np.zeros((H + 1, nv)),
+        ctrl=np.array(ctrl, dtype=float),
+        warmstart=np.zeros((H + 1, nv)),
+        actuator_force=np.zeros((H, nu)),
+        costs=np.zeros(H + 1),
+        stable=True,
+    )
+    _set_state(model, data, qpos0, qvel0, warm0 if warm0 is not None else np.zeros(nv))
+    data.time = 0.0
+    act = np.arange(nu) if active is None else active
+    lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
+    limited = model.actuator_ctrllimited.astype(bool)
+    bad0 = data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number
+    for t in range(H):
+        out.qpos[t] = data.qpos
+        out.qvel[t] = data.qvel
+        out.warmstart[t] = data.qacc_warmstart
+        u = out.ctrl[t].copy()
+        if nominal is not None and K is not None and k is not None:
+            dx = state_diff(model, data.qpos, data.qvel, nominal.qpos[t], nominal.qvel[t])
+            u[act] += K[t] @ dx + alpha * k[t]
+        u = np.where(limited, np.clip(u, lo, hi), u)
+        out.ctrl[t] = u
+        data.ctrl[:] = u
+        cost.prepare(model, data, t0 + t, 0)
+        # step1 computes the position/velocity stages of x_t (sites, contacts, qvel
+        # still = v_t), where the running cost is evaluated; step2 integrates.
+        mujoco.mj_step1(model, data)
+        out.costs[t] = cost.value(model, data, t0 + t, u)
+        mujoco.mj_step2(model, data)
+        out.actuator_force[t] = data.actuator_force
+        for sub in range(1, substeps):
+            data.ctrl[:] = u
+            cost.prepare(model, data, t0 + t, sub)
+            mujoco.mj_step(model, data)
+        ok = np.all(np.isfinite(data.qvel)) and np.abs(data.qvel).max() < MAX_SPEED
+        if not (ok and data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number == bad0):
+            out.stable = False
+            out.qpos[t + 1 :] = out.qpos[t]
+            out.qvel[t + 1 :] = 0.0
+            return out
+    out.qpos[H] = data.qpos
+    out.qvel[H] = data.qvel
+    out.warmstart[H] = data.qacc_warmstart
+    mujoco.mj_forward(model, data)
+    out.costs[H] = cost.value(model, data, t0 + H, None)
+    return out
+
+
+@dataclass
+class Linearisation:
+    A: np.ndarray  # (H, nx, nx)
+    B: np.ndarray  # (H, nx, nu_active)
+    lx: np.ndarray  # (H+1, nx)
+    lu: np.ndarray  # (H, nu_active)
+    lxx: np.ndarray  # (H+1, nx, nx)
+    luu: np.ndarray  # (H, nu_active, nu_active)
+    seconds_fd: float = 0.0
+    seconds_cost: float = 0.0
+
+
+def linearise(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    cost: Cost,
+    traj: Trajectory,
+    cfg: ILQRConfig,
+    active: np.ndarray,
+    t0: int = 0,
+    dynamics: Linearisation | None = None,
+    substeps: int = 1,
+) -> Linearisation:
+    """Dynamics Jacobians and cost derivatives along ``traj`` (see module docstring);
+    ``substeps`` MuJoCo steps per control step, chained.
+
+    ``dynamics``: a previous linearisation whose A, B are reused (only the cost
+    derivatives are recomputed; ``ILQRConfig.jacobian_reuse``)."""
+    H = traj.ctrl.shape[0]
+    nv, nu = model.nv, model.nu
+    nx, na = 2 * nv, active.size
+    tick = time.perf_counter
+    lin = Linearisation(
+        A=np.zeros((H, nx, nx)) if dynamics is None else dynamics.A,
+        B=np.zeros((H, nx, na)) if dynamics is None else dynamics.B,
+        lx=np.zeros((H + 1, nx)),
+        lu=np.zeros((H, na)),
+        lxx=np.zeros((H + 1, nx, nx)),
+        luu=np.zeros((H, na, na)),
+    )
+    Ab = np.zeros((nx, nx))
+    Bb = np.zeros((nx, nu))
+    every = max(1, cfg.deriv_every)
+    knots = sorted(set(list(range(0, H, every)) + [H - 1]))
+    for t in range(H + 1):
+        c0 = tick()
+        _set_state(model, data, traj.qpos[t], traj.qvel[t], traj.warmstart[t])
+        u = traj.ctrl[t] if t < H else None
+        if u is not None:
+            data.ctrl[:] = u
+        mujoco.mj_forward(model, data)
+        lx, lu, lxx, luu = cost.derivatives(model, data, t0 + t, u)
+        lin.seconds_cost += tick() - c0
+        lin.lx[t], lin.lxx[t] = lx, lxx
+        if u is not None:
+            lin.lu[t] = lu[active]
+            lin.luu[t] = luu[np.ix_(active, active)]
+            if t in knots and dynamics is None:
+                c0 = tick()
+                _set_state(model, data, traj.qpos[t], traj.qvel[t], traj.warmstart[t])
+                data.ctrl[:] = u
+                cost.prepare(model, data, t0 + t, 0)
+                mujoco.mjd_transitionFD(model, data, cfg.fd_eps, cfg.fd_centered, Ab, Bb, None, None)
+                A_t, B_t = Ab.copy(), Bb.copy()
+                for sub in range(1, substeps):
+                    # Chain rule over substeps with the control held: x' = f(f(x, u), u)
+                    # (plus the cost's time-dependent offsets, which do not depend on u).
+                    mujoco.mj_step(model, data)
+                    data.ctrl[:] = u
+                    cost.prepare(model, data, t0 + t, sub)
+                    mujoco.mjd_transitionFD(model, data, cfg.fd_eps, cfg.fd_centered, Ab, Bb, None, None)
+                    A_t, B_t = Ab @ A_t, Ab @ B_t + Bb
+                lin.A[t] = A_t
+                lin.B[t] = B_t[:, active]
+                lin.seconds_fd += tick() - c0
+    if dynamics is not None:
+        return lin
+    for a, b in zip(knots[:-1], knots[1:], strict=True):
+        for t in range(a + 1, b):
+            w = (t - a) / (b - a)
+            lin.A[t] = (1 - w) * lin.A[a] + w * lin.A[b]
+            lin.B[t] = (1 - w) * lin.B[a] + w * lin.B[b]
+    return lin
+
+
+def backward_pass(lin: Linearisation, mu: float) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    """Riccati recursion; returns (K (H, nu, nx), k (H, nu), dV1, dV2) with the
+    expected decrease α·dV1 + α²·dV2, or None when a regularised Q_uu is not PD."""
+    H, nx, na = lin.B.shape
+    Vx = lin.lx[H].copy()
+    Vxx = lin.lxx[H].copy()
+    K = np.zeros((H, na, nx))
+    k = np.zeros((H, na))
+    dV1 = dV2 = 0.0
+    eye = np.eye(na)
+    for t in range(H - 1, -1, -1):
+        A, B = lin.A[t], lin.B[t]
+        Qx = lin.lx[t] + A.T @ Vx
+        Qu = lin.lu[t] + B.T @ Vx
+        VA = Vxx @ A
+        VB = Vxx @ B
+        Qxx = lin.lxx[t] + A.T @ VA
+        Quu = lin.luu[t] + B.T @ VB
+        Qux = B.T @ VA
+        try:
+            L = np.linalg.cholesky(0.5 * (Quu + Quu.T) + mu * eye)
+        except np.linalg.LinAlgError:
+            return None
+        rhs = np.column_stack([Qu, Qux])
+        sol = np.linalg.solve(L.T, np.linalg.solve(L, rhs))
+        k[t] = -sol[:, 0]
+        K[t] = -sol[:, 1:]
+        dV1 += float(k[t] @ Qu)
+        dV2 += 0.5 * float(k[t] @ Quu @ k[t])
+        Vx = Qx + K[t].T @ Quu @ k[t] + K[t].T @ Qu + Qux.T @ k[t]
+        Vxx = Qxx + K[t].T @ Quu @ K[t] + K[t].T @ Qux + Qux.T @ K[t]
+        Vxx = 0.5 * (Vxx + Vxx.T)
+    return K, k, dV1, dV2
+
+
+def trajectory_gradient(lin: Linearisation) -> np.ndarray:
+    """Exact gradient dJ/du_t (H, nu_active) of the total cost by the adjoint
+    recursion λ_t = lx_t + A_tᵀ λ_{t+1} (used to check derivatives)."""
+    H = lin.B.shape[0]
+    lam = lin.lx[H].copy()
+    g = np.zeros_like(lin.lu)
+    for t in range(H - 1, -1, -1):
+        g[t] = lin.lu[t] + lin.B[t].T @ lam
+        lam = lin.lx[t] + lin.A[t].T @ lam
+    return g
+
+
+@dataclass
+class ILQRResult:
+    traj: Trajectory
+    cost_history: list[float]
+    iterations: int
+    mu: float
+    seconds: dict[str, float]
+    """Wall time by phase: ``derivatives_fd``, ``derivatives_cost``, ``backward``, ``rollouts``."""
+
+
+def optimise(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    cost: Cost,
+    qpos0: np.ndarray,
+    qvel0: np.ndarray,
+    ctrl_init: np.ndarray,
+    cfg: ILQRConfig = ILQRConfig(),
+    active: np.ndarray | None = None,
+    t0: int = 0,
+    warm0: np.ndarray | None = None,
+    substeps: int = 1,
+) -> ILQRResult:
+    """Minimise Σ_t l(x_t, u_t, t0+t) + l_T(x_H) over the ``active`` controls, each control
+    held for ``substeps`` MuJoCo steps (the model's timestep is the control period / substeps).
+
+    The returned cost history is non-increasing (a step is only accepted if it
+    lowers the total cost). Raises ``UnstableRollout`` if the initial rollout is unstable.
+    """
+    pool = ThreadPoolExecutor(cfg.rollout_threads, thread_name_prefix="ilqr-rollout") if cfg.rollout_threads > 1 else None
+    with pool if pool is not None else contextlib.nullcontext():
+        act = np.arange(model.nu) if active is None else np.asarray(active, dtype=np.int64)
+        secs = {"derivatives_fd": 0.0, "derivatives_cost": 0.0, "backward": 0.0, "rollouts": 0.0}
+        c0 = time.perf_counter()
+        nominal = rollout(model, data, cost, qpos0, qvel0, ctrl_init, t0=t0, warm0=warm0, substeps=substeps)
+        secs["rollouts"] += time.perf_counter() - c0
+        if not nominal.stable:
+            raise UnstableRollout("iLQR: the initial control sequence makes the simulation unstable")
+        history = [nominal.total]
+        alphas = np.logspace(0.0, np.log10(cfg.alpha_min), cfg.n_alpha)
+        mu = cfg.mu_init
+        it = 0
+        lin: Linearisation | None = None
+        while it < cfg.max_iter:
+            it += 1
+            reuse = lin if (it - 1) % cfg.jacobian_reuse else None
+            lin = linearise(model, data, cost, nominal, cfg, act, t0=t0, dynamics=reuse, substeps=substeps)
+            secs["derivatives_fd"] += lin.seconds_fd
+            secs["derivatives_cost"] += lin.seconds_cost
+            improved = False
+            tries = 0
+            while mu <= cfg.mu_max and tries <= cfg.max_backtracks:
+                tries += 1
+                c0 = time.perf_counter()
+                bp = backward_pass(lin, mu)
+                secs["backward"] += time.perf_counter() - c0
+                if bp is None:
+                    mu = max(mu * cfg.mu_up, 1e-4)
+                    continue
+                K, k, _, _ = bp
+                best: Trajectory | None = None
+                c0 = time.perf_counter()
+                for cand in _candidates(model, data, cost, qpos0, qvel0, nominal, K, k, alphas, act, t0, warm0, substeps, pool):
+                    if cand.total < (best.total if best is not None else nominal.total):
+                        best = cand
+                secs["rollouts"] += time.perf_counter() - c0
+                if best is not None:
+                    nominal = best
+                    improved = True
+                    mu = max(mu * cfg.mu_down, cfg.mu_min)
+                    break
+                mu = max(mu * cfg.mu_up, 1e-4)
+            if not improved:
+                log.debug("iLQR: no descent at iteration %d (mu=%.3g)", it, mu)
+                break
+            prev = history[-1]
+            history.append(nominal.total)
+            if (prev - nominal.total) <= cfg.rel_tol * abs(prev):
+                break
+        return ILQRResult(traj=nominal, cost_history=history, iterations=it, mu=mu, seconds=secs)
+
+
+def _candidates(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    cost: Cost,
+    qpos0: np.ndarray,
+    qvel0: np.ndarray,
+    nominal: Trajectory,
+    K: np.ndarray,
+    k: np.ndarray,
+    alphas: np.ndarray,
+    act: np.ndarray,
+    t0: int,
+    warm0: np.ndarray | None,
+    substeps: int,
+    pool: ThreadPoolExecutor | None,
+) -> list[Trajectory]:
+    """Closed-loop rollouts of every line-search step size, in ``alphas`` order."""
+
+    def one(a: float, d: mujoco.MjData) -> Trajectory:
+        return rollout(model, d, cost, qpos0, qvel0, nominal.ctrl, t0, nominal, K, k, a, act, warm0, substeps)
+
+    if pool is None:
+        return [one(float(a), data) for a in alphas]
+    datas = [data] + [mujoco.MjData(model) for _ in alphas[1:]]
+    return list(pool.map(one, [float(a) for a in alphas], datas))

@@ -1,0 +1,326 @@
+"""Physics backend entry point: receding-horizon iLQR over a bout and per-frame
+contacts; the scene and the reference come from ``reference`` (re-exported).
+
+Called by ``pipeline.stages.physics`` (which stays free of mujoco imports).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from pipeline.backends.mujoco.config import ILQRConfig, ResidualConfig, SolverConfig
+from pipeline.backends.mujoco.ilqr import ILQRResult, UnstableRollout, optimise
+from pipeline.backends.mujoco.reference import (
+    Scene,
+    build_reference,
+    build_scene,
+    contact_inverse_dynamics,
+    inverse_kinematics,
+    lift_off_floor,
+    plant_feet,
+    reference_velocity,
+    separate_persons,
+    separate_reference,
+    servo_feedforward,
+    site_targets,
+)
+from pipeline.backends.mujoco.tracking import Reference, TrackingCost
+
+__all__ = [
+    "BoutSolution",
+    "FrameContacts",
+    "Scene",
+    "SolverConfig",
+    "build_reference",
+    "build_scene",
+    "contact_inverse_dynamics",
+    "contacts_and_sites",
+    "count_windows",
+    "deepest_inter_person_mm",
+    "inverse_kinematics",
+    "lift_off_floor",
+    "optimise_bout",
+    "plant_feet",
+    "reference_velocity",
+    "separate_persons",
+    "separate_reference",
+    "servo_feedforward",
+    "site_targets",
+]
+
+log = logging.getLogger(__name__)
+
+RESIDUAL_GROUP = 3
+"""Actuator group of the residual root servos (see ``humanoid``)."""
+
+
+@dataclass
+class BoutSolution:
+    qpos: np.ndarray  # (F, nq)
+    qvel: np.ndarray  # (F, nv)
+    ctrl: np.ndarray  # (F, nu)
+    actuator_force: np.ndarray  # (F, nu)
+    root_wrench: np.ndarray  # (F, persons, 6) residual root force (N) and torque (N·m), world
+    windows: int = 0
+    windows_with_residual: int = 0
+    resets: int = 0
+    kinematic_frames: int = 0
+    """Frames of windows that diverged even from the reference state: they hold the
+    (separated) reference instead of a simulation, and the next window restarts from it."""
+    iterations: int = 0
+    seconds: dict[str, float] = field(default_factory=dict)
+    cost_first: list[float] = field(default_factory=list)
+    cost_final: list[float] = field(default_factory=list)
+
+
+def _first_stable(
+    m: mujoco.MjModel,
+    d: mujoco.MjData,
+    cost: TrackingCost,
+    qpos0: np.ndarray,
+    qvel0: np.ndarray,
+    inits: list[np.ndarray],
+    cfg: ILQRConfig,
+    active: np.ndarray,
+    t0: int,
+    warm: np.ndarray | None,
+    substeps: int,
+) -> ILQRResult | None:
+    """Optimise from the first initial control sequence that does not diverge."""
+    for u0 in inits:
+        try:
+            return optimise(m, d, cost, qpos0, qvel0, u0, cfg, active=active, t0=t0, warm0=warm, substeps=substeps)
+        except UnstableRollout:
+            continue
+    return None
+
+
+def _mean_site_error(scene: Scene, qpos: np.ndarray, targets: np.ndarray, weight: np.ndarray) -> float:
+    d = mujoco.MjData(scene.model)
+    err, tot = 0.0, 0.0
+    for f in range(qpos.shape[0]):
+        d.qpos[:] = qpos[f]
+        mujoco.mj_kinematics(scene.model, d)
+        for i in range(len(scene.layout.persons)):
+            e = np.linalg.norm(d.site_xpos[scene.site_ids[i]] - targets[f, i], axis=-1)
+            err += float((e * weight[f, i]).sum())
+            tot += float(weight[f, i].sum())
+    return err / max(tot, 1e-9)
+
+
+def _committed_frames(start: int, horizon: int, n_frames: int, commit: int) -> int:
+    """Frames kept from a window of ``horizon`` steps at ``start``: ``commit``, or the whole
+    window when it reaches the last frame."""
+    return horizon if start + horizon >= n_frames - 1 else min(commit, horizon)
+
+
+def count_windows(n_frames: int, window: int, commit: int) -> int:
+    """Number of receding-horizon windows over ``n_frames`` (the last one is kept whole)."""
+    s, n = 0, 0
+    while s < n_frames - 1:
+        s += _committed_frames(s, min(window, n_frames - 1 - s), n_frames, commit)
+        n += 1
+    return n
+
+
+def optimise_bout(
+    scene: Scene,
+    ref: Reference,
+    targets: np.ndarray,
+    weight: np.ndarray,
+    cfg: SolverConfig,
+    residual: ResidualConfig = ResidualConfig(),
+    progress: Callable[[int, int, str], None] | None = None,
+) -> BoutSolution:
+    """Receding-horizon iLQR: windows of ``cfg.window`` steps, the first
+    ``cfg.commit`` of which are kept; the next window starts from the simulated
+    state, so the whole output is one continuous simulation. Cost is linear in the
+    number of frames. The residual root wrench is used as ``residual.mode`` says (the
+    scene must have its actuators, ``build_scene(residual=...)``, unless it is off)."""
+    m, lay = scene.model, scene.layout
+    d = mujoco.MjData(m)
+    F = ref.qpos.shape[0]
+    # The collision term sees every pair of the athletes' geoms, also the arm-arm pairs
+    # the simulation leaves out: the optimiser keeps arms apart softly, through the cost.
+    cost = TrackingCost(m, lay, ref, cfg.weights, probe=scene.collision_probe())
+    sol = BoutSolution(
+        qpos=np.zeros((F, m.nq)), qvel=np.zeros((F, m.nv)), ctrl=np.zeros((F, m.nu)), actuator_force=np.zeros((F, m.nu)),
+        root_wrench=np.zeros((F, len(lay.persons), 6)),
+        seconds={"derivatives_fd": 0.0, "derivatives_cost": 0.0, "backward": 0.0, "rollouts": 0.0},
+    )
+    qpos0 = lift_off_floor(scene, separate_persons(scene, ref.qpos[0]))
+    qvel0 = ref.qvel[0].copy()
+    warm = None
+    carry = np.zeros((0, m.nu))
+    servo = lay.servo_ids
+    resid = lay.residual_ids
+    res_bit = 1 << RESIDUAL_GROUP
+    base_disable = int(m.opt.disableactuator)
+    s = 0
+    n_windows = count_windows(F, cfg.window, cfg.commit)
+    sol.qpos[0], sol.qvel[0] = qpos0, qvel0
+
+    bw = np.array([p.mass_kg * 9.81 for p in lay.persons])
+
+    def active(with_residual: bool) -> np.ndarray:
+        # The residual servos' targets are optimised too when they act: the optimiser can
+        # then move a root away from the other athlete instead of the residual pinning it
+        # to a reference that overlaps him.
+        return np.concatenate([servo, resid]) if with_residual else servo
+
+    def set_residual(on: bool) -> None:
+        m.opt.disableactuator = (base_disable & ~res_bit) if on else (base_disable | res_bit)
+        cost.set_residual(on, residual.torque_frac * bw * 0.3, residual.rot_saturation_rad)
+        if not on:
+            d.xfrc_applied[:] = 0.0
+
+    try:
+        while s < F - 1:
+            H = min(cfg.window, F - 1 - s)
+            u0 = ref.ctrl[s : s + H].copy()
+            nc = min(carry.shape[0], H)
+            both = np.concatenate([servo, resid])
+            u0[:nc, both] = carry[:nc, both]
+            use_res = residual.mode == "always" and resid.size > 0
+            set_residual(use_res)
+            res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg.ilqr, active(use_res), s, warm, scene.substeps)
+            if res_or_none is None and residual.mode != "off" and resid.size and not use_res:
+                use_res = True
+                set_residual(True)
+                res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg.ilqr, active(True), s, warm, scene.substeps)
+            if res_or_none is None:
+                # Last resort: restart this window from the reference state.
+                log.warning("physics: window at frame %d diverges from the simulated state; reset to the reference", s)
+                sol.resets += 1
+                qpos0 = lift_off_floor(scene, separate_persons(scene, ref.qpos[s]))
+                qvel0, warm = ref.qvel[s].copy(), None
+                res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [ref.ctrl[s : s + H]], cfg.ilqr, active(use_res), s, warm, scene.substeps)
+                if res_or_none is None:
+                    # Keep the job alive: these frames hold the reference, reported as such.
+                    C = _committed_frames(s, H, F, cfg.commit)
+                    log.warning(
+                        "physics: the simulation diverges at frame %d even from the reference state; "
+                        "frames %d-%d keep the reference motion (stats: kinematic_frames)", s, s + 1, s + C
+                    )
+                    for t in range(1, C + 1):
+                        sol.qpos[s + t] = lift_off_floor(scene, separate_persons(scene, ref.qpos[s + t]))
+                    sol.qvel[s + 1 : s + C + 1] = ref.qvel[s + 1 : s + C + 1]
+                    sol.ctrl[s : s + C] = ref.ctrl[s : s + C]
+                    sol.kinematic_frames += C
+                    qpos0, qvel0, warm = sol.qpos[s + C].copy(), sol.qvel[s + C].copy(), None
+                    carry = np.zeros((0, m.nu))
+                    s += C
+                    sol.windows += 1
+                    if progress is not None:
+                        progress(sol.windows, n_windows, f"window {sol.windows}/{n_windows}: diverged, kept the reference")
+                    continue
+            res = res_or_none
+            if residual.mode == "fallback" and resid.size and not use_res:
+                err = _mean_site_error(scene, res.traj.qpos, targets[s : s + H + 1], weight[s : s + H + 1])
+                if err > residual.fallback_tol_m:
+                    for k_, v_ in res.seconds.items():
+                        sol.seconds[k_] += v_
+                    sol.iterations += res.iterations
+                    set_residual(True)
+                    res2 = _first_stable(m, d, cost, qpos0, qvel0, [res.traj.ctrl], cfg.ilqr, active(True), s, warm, scene.substeps)
+                    if res2 is not None and res2.traj.total < res.traj.total:
+                        res, use_res = res2, True
+                    else:
+                        set_residual(False)
+            for k_, v_ in res.seconds.items():
+                sol.seconds[k_] += v_
+            sol.iterations += res.iterations
+            sol.windows += 1
+            sol.windows_with_residual += int(use_res)
+            sol.cost_first.append(res.cost_history[0])
+            sol.cost_final.append(res.cost_history[-1])
+            C = _committed_frames(s, H, F, cfg.commit)
+            tr = res.traj
+            sol.qpos[s : s + C + 1] = tr.qpos[: C + 1]
+            sol.qvel[s : s + C + 1] = tr.qvel[: C + 1]
+            sol.ctrl[s : s + C] = tr.ctrl[:C]
+            sol.actuator_force[s : s + C] = tr.actuator_force[:C]
+            if not use_res:
+                sol.actuator_force[s : s + C, resid] = 0.0
+            for i, p in enumerate(lay.persons):
+                sol.root_wrench[s : s + C, i, : p.residual_ids.size] = sol.actuator_force[s : s + C, p.residual_ids]
+            if use_res:
+                for t in range(C):
+                    sol.root_wrench[s + t, :, 3:] = cost.root_torque(tr.qpos[t], tr.qvel[t], s + t)
+            qpos0, qvel0, warm = tr.qpos[C].copy(), tr.qvel[C].copy(), tr.warmstart[C].copy()
+            carry = tr.ctrl[C:]
+            s += C
+            if progress is not None:
+                msg = f"window {sol.windows}/{n_windows}: cost {res.cost_history[0]:.3g} -> {res.cost_history[-1]:.3g}"
+                progress(sol.windows, n_windows, msg)
+    finally:
+        m.opt.disableactuator = base_disable
+        cost.set_residual(False)
+    sol.ctrl[F - 1] = sol.ctrl[F - 2] if F > 1 else ref.ctrl[0]
+    sol.actuator_force[F - 1] = sol.actuator_force[F - 2] if F > 1 else 0.0
+    return sol
+
+
+@dataclass
+class FrameContacts:
+    frame: np.ndarray  # (c,)
+    person: np.ndarray  # (c, 2) person ids, -1 = ground
+    body: np.ndarray  # (c, 2) indices into body_names
+    depth_m: np.ndarray  # (c,)
+    body_names: tuple[str, ...]
+
+
+def deepest_inter_person_mm(contacts: FrameContacts, n_frames: int) -> np.ndarray:
+    """(n_frames,) deepest overlap in mm between bodies of different persons in each
+    frame (0 where they do not overlap; ground contacts are ignored)."""
+    inter = (contacts.person[:, 0] >= 0) & (contacts.person[:, 1] >= 0)
+    out = np.zeros(n_frames)
+    np.maximum.at(out, contacts.frame[inter], 1000.0 * contacts.depth_m[inter])
+    return out
+
+
+def contacts_and_sites(scene: Scene, qpos: np.ndarray, qvel: np.ndarray) -> tuple[FrameContacts, np.ndarray]:
+    """Contacts of every frame (inter-person and ground) and the site positions
+    (frames, persons, sites, 3). Contacts come from ``scene.probe_model()``: every pair
+    of the athletes' geoms, also those the simulation leaves out (arm-arm), so that
+    overlap the simulation did not prevent is still reported."""
+    m, lay = scene.probe_model(), scene.layout
+    d = mujoco.MjData(m)
+    F = qpos.shape[0]
+    names = tuple(m.body(b).name for b in range(m.nbody))
+    pid = np.array([p.person_id for p in lay.persons])
+    rows: list[tuple[int, int, int, int, int, float]] = []
+    sites = np.zeros((F, len(lay.persons), scene.site_ids.shape[1], 3))
+    for f in range(F):
+        d.qpos[:] = qpos[f]
+        d.qvel[:] = qvel[f]
+        mujoco.mj_fwdPosition(m, d)
+        for i in range(len(lay.persons)):
+            sites[f, i] = d.site_xpos[scene.site_ids[i]]
+        for c in range(d.ncon):
+            g1, g2 = d.contact.geom[c]
+            p1, p2 = lay.geom_person[g1], lay.geom_person[g2]
+            if p1 == p2:
+                continue
+            rows.append((
+                f,
+                int(pid[p1]) if p1 >= 0 else -1,
+                int(pid[p2]) if p2 >= 0 else -1,
+                int(m.geom_bodyid[g1]),
+                int(m.geom_bodyid[g2]),
+                float(-d.contact.dist[c]),
+            ))
+    arr = np.array(rows, dtype=float).reshape(-1, 6)
+    fc = FrameContacts(
+        frame=arr[:, 0].astype(np.int64),
+        person=arr[:, 1:3].astype(np.int64),
+        body=arr[:, 3:5].astype(np.int64),
+        depth_m=arr[:, 5].copy(),
+        body_names=names,
+    )
+    return fc, sites

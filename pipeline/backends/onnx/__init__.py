@@ -1,0 +1,1 @@
+"""ONNX Runtime backends: the 2D person detectors and pose estimators."""
