@@ -1,18 +1,18 @@
 """Stage ``fit``: a parametric body model per athlete from 2D and 3D keypoints (paper 3.3).
 
 Pure: ``run(keypoints3d, tracks, association, rig, cfg) -> FitResult``. The heavy work
-(torch) happens in ``pipeline.backends.anny.fit`` (anny) or ``pipeline.backends.smpl.fit``
-(SMPL/SMPL-X, the user's model files), imported when ``run`` is called.
+(torch) is ``pipeline.backends.fitting.sequence.fit_sequence`` with the body model's adapter
+from ``pipeline.backends.anny.fit`` (anny) or ``pipeline.backends.smpl.fit`` (SMPL/SMPL-X,
+the user's model files), imported when ``run`` is called.
 """
 
 from __future__ import annotations
 
-import functools
 import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,6 +26,9 @@ from pipeline.schema.joints import COCO17_FEET
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import BodyFit
 from pipeline.stages.fit_config import FitConfig
+
+if TYPE_CHECKING:
+    from pipeline.backends.fitting.body_model import BodyModel
 
 __all__ = ["FitConfig", "FitResult", "PersonInputs", "gather_inputs", "run"]
 
@@ -163,27 +166,23 @@ def run(
     (``total``: the iteration budget of the whole fit); it may raise to stop the fit."""
     t_start = time.perf_counter()
     cfg = cfg.at_rate(keypoints3d.fps)
-    if cfg.body_model == "anny":
-        from pipeline.backends.anny.fit import fit_anny
-        from pipeline.backends.anny.model import anny_fit_body
+    if cfg.body_model == "anny":  # anny_fit_body is cached: no copy of the model per run
+        from pipeline.backends.anny.fit import anny_fit_model
 
-        body = anny_fit_body(cfg.rig, cfg.precision)  # cached: no copy of the model per run
-        bone_names, rig_name, shape0 = body.bone_names, cfg.rig, np.full(6, 0.5)
-        fit_backend: Callable[..., Any] = functools.partial(fit_anny, cfg=cfg, body=body)
+        body: BodyModel = anny_fit_model(cfg)
     else:  # SMPL / SMPL-X: ValueError naming the path when files or smplx are missing
-        from pipeline.backends.smpl.body import N_BETAS, smpl_body
-        from pipeline.backends.smpl.fit import fit_smpl
+        from pipeline.backends.smpl.fit import smpl_fit_model
 
-        sbody = smpl_body(cfg.body_model, cfg.body_model_path, cfg.smpl_gender)
-        bone_names, rig_name, shape0 = sbody.joint_names, sbody.rig, np.zeros(N_BETAS)
-        fit_backend = functools.partial(fit_smpl, cfg=cfg, body=sbody)
+        body = smpl_fit_model(cfg)
+    bone_names, rig_name, shape0 = body.bone_names, body.rig, body.neutral_shape
 
     inputs = gather_inputs(keypoints3d, tracks, association, rig, cfg)
     present = np.stack([(i.w3d > 0).sum(axis=1) >= cfg.min_valid_joints for i in inputs], axis=1)  # (F, P)
     fit_persons = [p for p in range(len(inputs)) if present[:, p].sum() >= 2]
     nf, npers, nj = keypoints3d.n_frames, keypoints3d.n_persons, len(COCO17_FEET)
 
-    from pipeline.backends.fitting.common import PersonObservations, report_lbfgs_progress
+    from pipeline.backends.fitting.common import PersonObservations
+    from pipeline.backends.fitting.sequence import fit_sequence
 
     nb = len(bone_names)
     shape = np.tile(shape0, (npers, 1))
@@ -197,8 +196,7 @@ def run(
             PersonObservations(inputs[p].kp3d_m, inputs[p].w3d, inputs[p].uv_px, inputs[p].w2d)
             for p in fit_persons
         ]
-        with report_lbfgs_progress(progress, cfg):
-            res = fit_backend(obs, rig.P)
+        res = fit_sequence(body, obs, rig.P, cfg, progress)
         for k, p in enumerate(fit_persons):
             shape[p], pose[:, p], root[:, p], kp[:, p], loss[p] = (
                 res.shape[k],

@@ -216,7 +216,7 @@ def test_config_validation() -> None:
 def test_accel_term_splits_whole_body_and_relative_acceleration() -> None:
     import torch
 
-    from pipeline.backends.fitting.common import FOOT_KEYPOINTS, accel_term
+    from pipeline.backends.fitting.terms import FOOT_KEYPOINTS, accel_term
 
     assert [COCO17_FEET[i] for i in FOOT_KEYPOINTS] == [
         "left_ankle", "right_ankle", "left_big_toe", "left_small_toe", "left_heel",
@@ -257,7 +257,8 @@ def test_adaptive_accel_weights_follow_local_acceleration() -> None:
     m the RMS acceleration over the window; they replace the pseudo-Huber in accel_term."""
     import torch
 
-    from pipeline.backends.fitting.common import accel_term, adaptive_accel_weights
+    from pipeline.backends.fitting.common import adaptive_accel_weights
+    from pipeline.backends.fitting.terms import accel_term
 
     nj, nf = len(COCO17_FEET), 12
     x = torch.zeros(2, nf, nj, 3, dtype=torch.float64)
@@ -295,7 +296,8 @@ def test_pose_passes_reweight_after_the_configured_iterations(monkeypatch: pytes
     import torch
 
     import pipeline.backends.fitting.common as fc
-    from pipeline.backends.fitting.common import accel_term, run_pose_passes
+    from pipeline.backends.fitting.common import run_pose_passes
+    from pipeline.backends.fitting.terms import accel_term
 
     budgets: list[int] = []  # iteration budget of every L-BFGS run
     real_lbfgs = fc.run_lbfgs
@@ -395,11 +397,12 @@ def test_user_pose_prior_is_loaded_and_used(tmp_path: Path, motion: AnnyMotion) 
 
 def test_jerk_term_weights_third_differences_and_acts_only_when_reweighted() -> None:
     """jerk_term: squared third differences, each weighted by the smaller of the two
-    acceleration weights it spans; zero for constant acceleration. sequence_terms adds it
-    only with re-weighted acceleration weights (after ``accel_adapt_after``)."""
+    acceleration weights it spans; zero for constant acceleration. The ``Jerk`` loss term
+    applies only with re-weighted acceleration weights (after ``accel_adapt_after``)."""
     import torch
 
-    from pipeline.backends.fitting.common import jerk_term, sequence_terms
+    from pipeline.backends.fitting.body_model import FitState, Rest, Skeleton
+    from pipeline.backends.fitting.terms import Targets, TermContext, build_terms, evaluate_terms, jerk_term
 
     nj, nf = len(COCO17_FEET), 8
     t = torch.arange(nf, dtype=torch.float64)
@@ -418,24 +421,31 @@ def test_jerk_term_weights_third_differences_and_acts_only_when_reweighted() -> 
     with pytest.raises(ValueError, match="jerk_term: weights of shape"):
         jerk_term(x, ones[:, 1:])
 
-    cfg = FitConfig(w_jerk=10.0, w_accel=0.0, w_2d=0.0, w_smooth=0.0)
     n = 2 * nf
     kp = x.reshape(n, nj, 3)
-    pose = torch.zeros(n, 3, 3, dtype=torch.float64)
-    G = torch.eye(3, dtype=torch.float64).expand(n, 4, 3, 3)
-    args = (cfg, kp, kp, torch.ones(n, nj, dtype=torch.float64), torch.zeros(1, 3, 4), torch.zeros(1, n, nj, 2))
-    rest = (torch.zeros(1, n, nj), True, pose, G[:, 0], G, torch.zeros(n, 4, 3), torch.zeros(n, 4, 3), 2, nf, None)
-    assert "jerk" not in sequence_terms(*args, *rest)
-    with_w = sequence_terms(*args, *rest, accel_weights=w)
-    assert float(with_w["jerk"]) == pytest.approx(10.0 * expect)
-    off = (FitConfig(w_jerk=0.0, w_accel=0.0, w_2d=0.0, w_smooth=0.0), *args[1:])
-    assert "jerk" not in sequence_terms(*off, *rest, accel_weights=w)
+    z = torch.zeros(n, 4, 3, dtype=torch.float64)
+    targets = Targets(
+        kp, torch.ones(n, nj, dtype=torch.float64), torch.zeros(1, n, nj, 2), torch.zeros(1, n, nj),
+        torch.zeros(1, 3, 4), torch.ones(2, nf, dtype=torch.bool), n_persons=2, n_frames=nf,
+    )
+
+    def state(weights: torch.Tensor | None) -> FitState:
+        G = torch.eye(3, dtype=torch.float64).expand(n, 4, 3, 3)
+        sk = Skeleton(G, z, kp)
+        return FitState(z[:, :3], G[:, 0], z, z[:, 0], Rest(z), sk, kp, z[:2], z[:2, 0], True, weights)
+
+    cfg = FitConfig(w_jerk=10.0, w_accel=0.0, w_2d=0.0, w_smooth=0.0)
+    (jerk,) = build_terms(("jerk",), TermContext(cfg, None, targets))  # type: ignore[arg-type]
+    assert "jerk" not in evaluate_terms([jerk], state(None))
+    assert float(evaluate_terms([jerk], state(w))["jerk"]) == pytest.approx(10.0 * expect)
+    off = FitConfig(w_jerk=0.0, w_accel=0.0, w_2d=0.0, w_smooth=0.0)
+    assert build_terms(("jerk",), TermContext(off, None, targets)) == []  # type: ignore[arg-type]
 
 
 def test_temporal_weights_follow_the_frame_rate() -> None:
     """The same motion costs the same at any frame rate: a k-th difference of a sampled
     motion scales as fps^-k, so the weights scale as fps^(2k) and the robust scales as fps^-k."""
-    from pipeline.backends.fitting.common import accel_term
+    from pipeline.backends.fitting.terms import accel_term
 
     torch = pytest.importorskip("torch")
     cfg = FitConfig(accel_whole_body=1.0)

@@ -1,43 +1,27 @@
-"""Initialisation of the anny fit: shape from limb lengths, roots by Kabsch, limbs by swing IK.
+"""Initialisation of the anny fit: shape from limb lengths, the limbs' swing drivers, and FK
+with the root's rotation as a matrix (used by ``fit_body.AnnyFitBody``).
 
-The body-model-independent pieces (observations, L-BFGS driver, limb lengths, Kabsch root
-initialisation) live in ``fitting.common`` and are re-exported here under their old names.
+The body-model-independent pieces (limb lengths, Kabsch root initialisation, the swing
+initialisation itself: ``fitting.sequence.init_limbs``) live in ``fitting``.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import roma
 import torch
 
-from pipeline.backends.anny.fk import SparseKeypoints, forward_kinematics, keypoints_from_bones
+from pipeline.backends.anny.fk import forward_kinematics, keypoints_from_bones
 from pipeline.backends.anny.model import PHENOTYPE_LABELS, AnnyBody
 from pipeline.backends.fitting.common import (
     SHAPE_LIMBS,
-    TORSO,
     PersonObservations,
-    init_roots,
     joint_idx,
+    observed_lengths,
     run_lbfgs,
 )
-from pipeline.backends.fitting.common import min_rotation as _min_rotation
-from pipeline.backends.fitting.common import observed_lengths as _observed_lengths
 from pipeline.backends.fitting.config import FitConfig
-from pipeline.schema.joints import COCO17_FEET
 
-__all__ = [
-    "IK_DRIVERS",
-    "SHAPE_LIMBS",
-    "TORSO",
-    "PersonObservations",
-    "fit_shapes",
-    "forward_kinematics_rootmat",
-    "init_limbs",
-    "init_roots",
-    "joint_idx",
-    "rotmat_rows",
-    "run_lbfgs",
-]
+__all__ = ["IK_DRIVERS", "fit_shapes", "forward_kinematics_rootmat"]
 
 # (driver bone, child keypoint): the bone is swung so that the keypoint points at its target.
 IK_DRIVERS: tuple[tuple[str, str], ...] = (
@@ -60,7 +44,7 @@ def fit_shapes(body: AnnyBody, observations: list[PersonObservations], cfg: FitC
     Bone lengths say little about girth, so ``muscle`` and ``weight`` are held near
     ``cfg.girth_prior`` (weight ``cfg.girth_prior_weight``); the other phenotypes have a
     weak pull (1e-4) towards anny's average."""
-    lengths, weights = zip(*(_observed_lengths(o) for o in observations), strict=True)
+    lengths, weights = zip(*(observed_lengths(o) for o in observations), strict=True)
     L = torch.as_tensor(np.stack(lengths), dtype=body.dtype)
     W = torch.as_tensor(np.stack(weights), dtype=body.dtype)
     ia = torch.as_tensor(joint_idx(tuple(a for a, _ in SHAPE_LIMBS)))
@@ -88,40 +72,6 @@ def fit_shapes(body: AnnyBody, observations: list[PersonObservations], cfg: FitC
 
     run_lbfgs([u], closure, cfg.shape_iters, cfg)
     return torch.sigmoid(u).detach()
-
-
-def init_limbs(
-    body: AnnyBody,
-    G_root: torch.Tensor,
-    pose: torch.Tensor,
-    root: torch.Tensor,
-    heads: torch.Tensor,
-    sparse_kp: SparseKeypoints,
-    row_person: torch.Tensor,
-    kp3d: torch.Tensor,
-    w3d: torch.Tensor,
-) -> torch.Tensor:
-    """Swing each limb bone (``IK_DRIVERS``, in FK order) so its child keypoint points at the
-    triangulated one; returns the updated (n, bones-1, 3) non-root pose. Rows without both the
-    bone's parent keypoint side and the child keypoint keep their pose."""
-    pose = pose.clone()
-    parent = body.bone_parent
-    for bone, child in IK_DRIVERS:
-        b = body.bone_names.index(bone)
-        k = COCO17_FEET.index(child)
-        G, x = forward_kinematics_rootmat(body, G_root, pose, root, heads)
-        kp = sparse_kp(G, x, row_person)
-        ok = w3d[:, k] > 0
-        R = _min_rotation(kp[:, k] - x[:, b], kp3d[:, k] - x[:, b])
-        Gp = G[:, parent[b]]
-        local = Gp.transpose(-1, -2) @ R @ G[:, b]
-        new = roma.rotmat_to_rotvec(local)
-        pose[:, b - 1] = torch.where(ok[:, None], new, pose[:, b - 1])
-    return pose
-
-
-def rotmat_rows(aa: torch.Tensor) -> torch.Tensor:
-    return roma.rotvec_to_rotmat(aa)
 
 
 def forward_kinematics_rootmat(

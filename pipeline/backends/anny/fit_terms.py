@@ -1,5 +1,5 @@
-"""Precomputed pieces of the anny fit's loss: mesh-velocity moments, sole vertices, variable
-scales and bone tails for the joint limits."""
+"""Precomputed pieces of the anny fit's loss: mesh-moment factors, sole vertices, variable
+scales and bone tails for the joint limits (used by ``anny.fit_body``)."""
 
 from __future__ import annotations
 
@@ -10,24 +10,12 @@ from pipeline.backends.anny.model import AnnyBody
 from pipeline.backends.fitting.common import lbs_moment_factors
 
 
-class MeshMoments:
-    """Exact sum over all mesh vertices of the squared vertex displacement between frames.
-
-    With LBS, ``v' = sum_b w_vb A_b [v; 1]`` (``A_b = [G_b | t_b]``), so
-    ``sum_v |dv'|^2 = sum_i z_i^T S z_i`` where ``z_i`` (bones*4) stacks row ``i`` of every
-    ``dA_b`` and ``S = sum_v (w_v (x) [v; 1])(w_v (x) [v; 1])^T``. We keep a factor
-    ``S = L L^T`` (eigen-decomposition), so the term is one dense matrix product per frame.
-    """
-
-    def __init__(self, body: AnnyBody, coeffs: torch.Tensor) -> None:
-        w = body.model.dense_vertex_bone_weights
-        self.L = lbs_moment_factors([body.rest_vertices(c[None])[0] for c in coeffs], w)
-
-    def __call__(self, dA: torch.Tensor) -> torch.Tensor:
-        """dA: (persons, steps, bones, 3, 4) transform differences -> scalar sum."""
-        p, t, nb = dA.shape[:3]
-        Z = dA.permute(0, 1, 3, 2, 4).reshape(p, t * 3, nb * 4)
-        return (Z @ self.L).square().sum()
+def mesh_moment_factors(body: AnnyBody, coeffs: torch.Tensor) -> torch.Tensor:
+    """(persons, bones * 4, rank) factors of the skinning moments of each person's whole rest
+    mesh at blendshape coefficients ``coeffs`` (persons, coeffs), for the smoothness term's
+    vertex velocity (``fitting.common.lbs_moment_factors``; in ``body``'s dtype)."""
+    w = body.model.dense_vertex_bone_weights
+    return lbs_moment_factors([body.rest_vertices(c[None])[0] for c in coeffs], w)
 
 
 def sole_vertices(body: AnnyBody, rest_verts: np.ndarray, per_foot: int = 24) -> np.ndarray:

@@ -1,9 +1,11 @@
 """Body-model-independent pieces of the kinematic fit (anny and SMPL/SMPL-X share them).
 
-The observations of one person, the L-BFGS driver, limb lengths for the shape
-initialisation, the root initialisation by Kabsch on the torso, the swing rotation of the
-limb initialisation, and the robust reprojection and keypoint-acceleration terms of the loss.
-Everything works on ``COCO17_FEET`` keypoints; nothing here knows the body model.
+The observations of one person, the L-BFGS driver and its pose passes with the re-weighting
+of the acceleration penalty, limb lengths for the shape initialisation, the root
+initialisation by Kabsch on the torso, the swing rotation of the limb initialisation, and the
+mesh-moment factors of the smoothness term. The loss terms are in ``terms``, the driver of a
+whole fit in ``sequence``. Everything works on ``COCO17_FEET`` keypoints; nothing here knows
+the body model.
 """
 
 from __future__ import annotations
@@ -225,83 +227,6 @@ def min_rotation(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return roma.rotvec_to_rotmat(axis / s.clamp(min=1e-9) * angle)
 
 
-def reprojection_term(
-    kp: torch.Tensor, P_px: torch.Tensor, uv_px: torch.Tensor, w2d: torch.Tensor, cfg: FitConfig
-) -> torch.Tensor:
-    """Unweighted L2D of eq. 3: confidence-weighted robust reprojection error, summed.
-
-    kp: (n, joints, 3) world keypoints; P_px: (views, 3, 4) to undistorted pixels;
-    uv_px: (views, n, joints, 2); w2d: (views, n, joints), 0 where unusable. The robust
-    function is Geman-McClure with scale ``cfg.gm_sigma_px`` (or plain squares, ``robust_2d``).
-    """
-    h = torch.einsum("vij,nkj->vnki", P_px[:, :, :3], kp) + P_px[:, None, None, :, 3]
-    proj = h[..., :2] / h[..., 2:].clamp(min=1e-3)
-    r2 = (proj - uv_px).square().sum(-1)
-    s2 = cfg.gm_sigma_px**2
-    rho = s2 * r2 / (s2 + r2) if cfg.robust_2d == "gm" else r2
-    return (w2d * rho).sum()
-
-
-FOOT_KEYPOINTS: tuple[int, ...] = tuple(
-    i for i, n in enumerate(COCO17_FEET) if n.endswith(("_ankle", "_heel", "_toe"))
-)
-"""Ankles, heels and toes (indices into COCO-17 + feet, whose first 17 are COCO-17)."""
-
-
-def accel_term(
-    kp: torch.Tensor, scale_m: float, whole_body: float = 1.0, weights: torch.Tensor | None = None
-) -> torch.Tensor:
-    """Sum of (pseudo-Huber, scale ``scale_m``; 0: plain) squared second differences of
-    keypoints ``kp`` (persons, frames, joints, 3) along frames (m^2 per frame^2).
-
-    The keypoints above the feet have their acceleration a_j split into the person's
-    whole-body acceleration ā (their mean) and the rest: |a_j|² → |a_j − ā|² +
-    ``whole_body`` · |ā|². Below 1, the body (footwork, weight shifts) may accelerate more
-    freely than one limb relative to it. The feet (``FOOT_KEYPOINTS``) keep their plain
-    squared acceleration, so that a planted foot stays still while the body shifts its weight.
-
-    ``weights`` (persons, frames - 2, joints), from ``adaptive_accel_weights``, replace the
-    pseudo-Huber: each keypoint's squared term is multiplied by its weight at that frame."""
-    a = kp[:, 2:] - 2 * kp[:, 1:-1] + kp[:, :-2]
-    nj = a.shape[2]
-    feet = [i for i in FOOT_KEYPOINTS if i < nj]
-    body = [i for i in range(nj) if i not in feet]
-    if body:
-        ab = a[:, :, body]
-        mean = ab.mean(dim=2, keepdim=True)
-        split = (ab - mean).square().sum(-1) + whole_body * mean.square().sum(-1)
-        a2 = torch.cat([split, a[:, :, feet].square().sum(-1)], dim=2)
-    else:
-        a2 = a.square().sum(-1)
-    if weights is not None:
-        if weights.shape != a.shape[:3]:
-            raise ValueError(
-                f"accel_term: weights of shape {tuple(weights.shape)}, need {tuple(a.shape[:3])}"
-            )
-        return (a2 * weights[:, :, body + feet].to(a2.dtype)).sum()
-    if scale_m > 0:  # quadratic for jitter, linear for genuine fast motion (punches)
-        d2 = scale_m**2
-        a2 = 2 * d2 * (torch.sqrt(1 + a2 / d2) - 1)
-    return a2.sum()
-
-
-def jerk_term(kp: torch.Tensor, accel_weights: torch.Tensor) -> torch.Tensor:
-    """Sum of squared third differences of keypoints ``kp`` (persons, frames, joints, 3)
-    along frames (m² per frame⁶), each weighted by the smaller of the two re-weighted
-    acceleration weights (``adaptive_accel_weights``, (persons, frames - 2, joints)) it
-    spans: strong where a keypoint is at rest, weak in a punch or a step.
-
-    Against the acceleration penalty alone, a smoother of higher order passes the slow
-    motion and stops the frame-to-frame noise more sharply."""
-    if accel_weights.shape != (kp.shape[0], kp.shape[1] - 2, kp.shape[2]):
-        raise ValueError(
-            f"jerk_term: weights of shape {tuple(accel_weights.shape)} for keypoints of shape {tuple(kp.shape)}"
-        )
-    j = kp[:, 3:] - 3 * kp[:, 2:-1] + 3 * kp[:, 1:-2] - kp[:, :-3]
-    w = torch.minimum(accel_weights[:, 1:], accel_weights[:, :-1]).to(j.dtype)
-    return (j.square().sum(-1) * w).sum()
-
-
 def adaptive_accel_weights(kp: torch.Tensor, scale_m: float, window: int, gain: float) -> torch.Tensor:
     """Per keypoint and frame weights of the acceleration penalty, from a motion fitted so
     far: ``kp`` (persons, frames, joints, 3) → (persons, frames - 2, joints).
@@ -318,64 +243,6 @@ def adaptive_accel_weights(kp: torch.Tensor, scale_m: float, window: int, gain: 
             padded = torch.nn.functional.pad(a2.permute(0, 2, 1), (window, window), mode="replicate")
             a2 = torch.nn.functional.avg_pool1d(padded, k, stride=1).permute(0, 2, 1)
         return gain * scale_m**2 / (scale_m**2 + a2)
-
-
-def sequence_terms(
-    cfg: FitConfig,
-    kp: torch.Tensor,
-    kp3d: torch.Tensor,
-    w3d: torch.Tensor,
-    P_px: torch.Tensor,
-    uv_px: torch.Tensor,
-    w2d: torch.Tensor,
-    use_2d: bool,
-    pose: torch.Tensor,
-    G_root: torch.Tensor,
-    G: torch.Tensor,
-    x: torch.Tensor,
-    rest_heads: torch.Tensor,
-    npers: int,
-    nf: int,
-    mesh_velocity: Callable[[torch.Tensor], torch.Tensor] | None,
-    accel_weights: torch.Tensor | None = None,
-) -> dict[str, torch.Tensor]:
-    """The weighted loss terms both body models share, in this order: ``3d``, ``2d``
-    (when ``use_2d``), ``reg``, ``smooth``, ``accel``, ``jerk`` (with ``accel_weights``).
-
-    Rows are person-major (``npers * nf``): kp, kp3d (rows, joints, 3); w3d (rows, joints);
-    pose (rows, bones - 1, 3) local rotation vectors; G_root (rows, 3, 3); G (rows, bones,
-    3, 3) and x (rows, bones, 3) world bone frames, ``rest_heads`` (rows, bones, 3) their
-    rest positions. ``mesh_velocity`` maps the frame-to-frame change of the bones' affine
-    transforms (persons, frames - 1, bones, 3, 4) to the summed squared mesh-vertex velocity;
-    None leaves out ``smooth``. ``accel_weights``: see ``accel_term``; the ``jerk`` term
-    (``jerk_term``) needs them, so it acts only in the re-weighted iterations.
-    """
-    out: dict[str, torch.Tensor] = {}
-    out["3d"] = cfg.w_3d * (w3d * (kp - kp3d).square().sum(-1)).sum()
-    if use_2d and cfg.w_2d > 0:
-        out["2d"] = cfg.w_2d * reprojection_term(kp, P_px, uv_px, w2d, cfg)
-    out["reg"] = cfg.w_reg * pose.square().sum()
-    nb = G.shape[-3]
-    if mesh_velocity is not None and nf > 1:
-        pz = pose.reshape(npers, nf, nb - 1, 3)
-        gz = G_root.reshape(npers, nf, 3, 3)
-        sm = (pz[:, 1:] - pz[:, :-1]).square().sum() + 0.5 * (gz[:, 1:] - gz[:, :-1]).square().sum()
-        t = x - (G @ rest_heads[..., None])[..., 0]
-        A = torch.cat([G, t[..., None]], dim=-1).reshape(npers, nf, nb, 3, 4)
-        out["smooth"] = cfg.w_smooth * (sm + mesh_velocity(A[:, 1:] - A[:, :-1]))
-    if cfg.w_accel > 0 and nf > 2:  # pseudo-Huber: quadratic for jitter, linear for punches
-        out["accel"] = cfg.w_accel * accel_term(
-            kp.reshape(npers, nf, kp.shape[-2], 3), cfg.accel_scale_m, cfg.accel_whole_body, accel_weights
-        )
-    if cfg.w_jerk > 0 and accel_weights is not None and nf > 3:
-        out["jerk"] = cfg.w_jerk * jerk_term(kp.reshape(npers, nf, kp.shape[-2], 3), accel_weights)
-    return out
-
-
-def ground_term(kp: torch.Tensor, foot: torch.Tensor, sole_z: torch.Tensor) -> torch.Tensor:
-    """Unweighted ground term: squared depth below z = 0 of the foot keypoints ``kp[:, foot]``
-    and of the sole vertices' heights ``sole_z``."""
-    return torch.relu(-kp[:, foot, 2]).square().sum() + torch.relu(-sole_z).square().sum()
 
 
 def lbs_moment_factors(rest_vertices: list[torch.Tensor], weights: torch.Tensor) -> torch.Tensor:

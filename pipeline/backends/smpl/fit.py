@@ -1,18 +1,13 @@
 """Fit SMPL / SMPL-X (the user's model files, ``smpl.body``) to every person's 2D and 3D
-keypoints over a whole sequence: the same method and loss as the anny fit (``anny.fit``).
+keypoints over a whole sequence: the same driver, passes and loss as anny
+(``fitting.sequence.fit_sequence``), with SMPL entering through ``SmplFitBody``.
 
-Steps, all persons batched together:
-1. Shape: 10 betas per person from the triangulated limb lengths (shared over the sequence).
-2. Initialisation per frame: pelvis by Kabsch of the rest torso keypoints onto the observed
-   ones, then hips/knees/ankles/shoulders/elbows swung so their child keypoint points at the
-   observed one.
-3. Pose pass 1: 3D term + priors + smoothness.
-4. Pose pass 2: eq. 3 of the paper (confidence-weighted Geman-McClure reprojection in every
-   view, 3D, ``Lreg``, ``Lsmooth`` = pose differences + whole-mesh vertex velocity, pose
-   prior) plus our terms: keypoint acceleration, soft joint limits, the ground (foot
-   keypoints and sole vertices), per-person landmark offsets; betas refined jointly.
-L-BFGS (history 100, lr 1, strong Wolfe) over every frame at once, variables scaled by the
-lever arm of what they move, as for anny.
+What is SMPL's own: the shape is 10 betas per person (from the triangulated limb lengths,
+shared over the sequence, refined jointly); the pelvis is the root; hips/knees/ankles/
+shoulders/elbows drive the swing initialisation; keypoints are skeleton joints and skinned
+landmark vertices (``smpl.body.keypoints``, pose blend shapes included); the soft joint
+limits below act on SMPL's parent-local axis-angle; the mesh moments ignore the pose blend
+shapes.
 
 Pose prior: without user files, the soft joint limits below plus ``Lreg``. With files: a GMM
 (``FitConfig.pose_prior_path``: our npz layout, or SMPLify's ``gmm_08.pkl``) over the body
@@ -24,36 +19,34 @@ from __future__ import annotations
 
 import logging
 import pickle
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
-import roma
 import torch
 
 from pipeline.backends.anny.priors import GMMPrior, joint_limit_penalty
+from pipeline.backends.fitting.body_model import FitState, PriorFn, Rest, Skeleton
 from pipeline.backends.fitting.common import (
     SHAPE_LIMBS,
     PersonObservations,
-    ground_term,
-    init_roots,
+    ProgressFn,
     joint_idx,
     lbs_moment_factors,
-    min_rotation,
     observed_lengths,
     run_lbfgs,
-    run_pose_passes,
-    sequence_terms,
 )
 from pipeline.backends.fitting.config import FitConfig
-from pipeline.backends.fitting.contacts import ProxyOverlap
+from pipeline.backends.fitting.sequence import FitOutput, fit_sequence
 from pipeline.backends.smpl.body import N_BETAS, SmplBody, forward, keypoints, skin, smpl_body
-from pipeline.schema.joints import COCO17_FEET, FOOT_JOINTS
+from pipeline.schema.joints import COCO17_FEET
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SMPL_LIMITS", "SmplFitOutput", "fit_smpl", "load_gmm_prior"]
+__all__ = ["SMPL_LIMITS", "SmplFitBody", "SmplFitOutput", "fit_smpl", "load_gmm_prior", "smpl_fit_model"]
+
+_BETA_SCALE = 0.15
+"""Scale of the betas among the L-BFGS variables, relative to √frames."""
 
 # Soft joint limits (radians) on SMPL's parent-local axis-angle, in SMPL's canonical axes
 # (x: subject's left, y: up, z: forward). Legs and spine flex about x (knee: +x bends the
@@ -102,20 +95,15 @@ IK_DRIVERS: tuple[tuple[str, str], ...] = (
 )
 
 
-@dataclass(frozen=True)
-class SmplFitOutput:
-    """Fitted parameters and keypoints (persons in input order); see ``smpl_body`` for frames."""
+class SmplFitOutput(FitOutput):
+    """The SMPL fit's output (``FitOutput``): ``shape`` (persons, 10) betas; ``pose_aa``
+    (frames, persons, joints, 3) the world pelvis orientation, then ``body_pose``; ``root_m``
+    the world pelvis position; see ``smpl_body`` for the frames."""
 
-    joint_names: tuple[str, ...]
-    rig: str
-    shape: np.ndarray  # (persons, 10) betas
-    pose_aa: np.ndarray  # (frames, persons, joints, 3): world pelvis orientation, then body_pose
-    root_m: np.ndarray  # (frames, persons, 3) world pelvis position
-    keypoints_m: np.ndarray  # (frames, persons, 23, 3)
-    present: np.ndarray  # (frames, persons) bool
-    loss: np.ndarray  # (persons,)
-    timings_s: dict[str, float] = field(default_factory=dict)
-    loss_terms: dict[str, float] = field(default_factory=dict)
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """SMPL's name for ``bone_names``."""
+        return self.bone_names
 
 
 class _ArrayUnpickler(pickle.Unpickler):
@@ -227,34 +215,6 @@ def _mesh_moments(body: SmplBody, betas: torch.Tensor) -> torch.Tensor:
     return lbs_moment_factors(rest, body.lbs_weights)
 
 
-def fit_smpl(
-    observations: list[PersonObservations], P_px: np.ndarray, cfg: FitConfig, body: SmplBody | None = None
-) -> SmplFitOutput:
-    """Fit betas and per-frame pose of every person (see the module docstring).
-
-    Args:
-        observations: one entry per person (same frame count), ``COCO17_FEET`` order.
-        P_px: (views, 3, 4) projection matrices to *undistorted* pixels.
-        cfg: the stage config; ``body_model``, ``body_model_path`` and ``smpl_gender`` pick the
-            model unless ``body`` is given.
-    Raises ``ValueError`` on inconsistent inputs or missing/unreadable model or prior files.
-    """
-    if not observations:
-        raise ValueError("fit_smpl: no persons to fit")
-    nf, nv = observations[0].kp3d_m.shape[0], P_px.shape[0]
-    for o in observations:
-        if o.kp3d_m.shape != (nf, len(COCO17_FEET), 3) or o.uv_px.shape[:2] != (nv, nf):
-            raise ValueError(f"fit_smpl: inconsistent observation shapes {o.kp3d_m.shape} / {o.uv_px.shape}")
-    body = body or smpl_body(cfg.body_model, cfg.body_model_path, cfg.smpl_gender)
-    threads = torch.get_num_threads()
-    if cfg.threads > 0:
-        torch.set_num_threads(cfg.threads)
-    try:
-        return _fit(observations, P_px, cfg, body)
-    finally:
-        torch.set_num_threads(threads)
-
-
 def _fit_betas(body: SmplBody, observations: list[PersonObservations], cfg: FitConfig) -> torch.Tensor:
     """(persons, 10) betas minimising the limb-length differences to the observations."""
     lengths, weights = zip(*(observed_lengths(o) for o in observations), strict=True)
@@ -287,185 +247,130 @@ def _rest_keypoints(body: SmplBody, betas: torch.Tensor) -> torch.Tensor:
     return keypoints(body, betas, J, G, x, R)
 
 
-def _fit(
-    observations: list[PersonObservations], P_px: np.ndarray, cfg: FitConfig, body: SmplBody
+@dataclass(frozen=True)
+class _SmplSkeleton(Skeleton):
+    """``Skeleton`` plus the local rotation matrices (rows, joints - 1, 3, 3) of the pose
+    blend shapes, which skinning the soles needs again."""
+
+    R_local: torch.Tensor
+
+
+class SmplFitBody:
+    """SMPL/SMPL-X (``SmplBody``, float64) for ``fitting.sequence.fit_sequence``; one fit at a
+    time (``bind`` fixes the persons)."""
+
+    dtype = torch.float64
+
+    def __init__(self, body: SmplBody) -> None:
+        self.body = body
+        self.name = self.rig = body.rig
+        self.bone_names = body.joint_names
+        self.bone_parents = body.parents
+        self.neutral_shape = np.zeros(N_BETAS)
+        self.ik_drivers = tuple((body.joint_names.index(j), COCO17_FEET.index(k)) for j, k in IK_DRIVERS)
+        vertex_bone = body.keypoint_vertices.weights.numpy().argmax(1)[np.maximum(body.kp_vertex, 0)]
+        self.landmark_bones = torch.as_tensor(np.where(body.kp_joint >= 0, body.kp_joint, vertex_bone))
+
+    def init_shape(self, observations: list[PersonObservations], cfg: FitConfig) -> torch.Tensor:
+        return _fit_betas(self.body, observations, cfg)
+
+    def bind(self, shape: torch.Tensor, row_person: torch.Tensor, cfg: FitConfig) -> None:
+        body, nb = self.body, self.body.n_joints
+        self._rows, self._betas0 = row_person, shape
+        with torch.no_grad():
+            self._rest_kp = _rest_keypoints(body, shape).numpy()
+            self._rest_J = body.rest_joints(shape).numpy()
+        self._rest0 = Rest(torch.as_tensor(self._rest_J)[row_person], shape[row_person])
+        lo = torch.full((nb - 1, 3), -1e6, dtype=torch.float64)
+        hi = torch.full((nb - 1, 3), 1e6, dtype=torch.float64)
+        for j, name in enumerate(body.joint_names[1:]):
+            if name in SMPL_LIMITS:
+                lo[j] = torch.as_tensor([r[0] for r in SMPL_LIMITS[name]])
+                hi[j] = torch.as_tensor([r[1] for r in SMPL_LIMITS[name]])
+        self._limits = (torch.eye(3, dtype=torch.float64).expand(nb - 1, 3, 3), lo, hi)
+        self._priors: dict[str, PriorFn] = {}
+        if cfg.pose_prior_path == "builtin":
+            logger.info("smpl fit: the shipped GMM pose prior is for anny's rig; not used for %s", body.body_model)
+        elif cfg.pose_prior_path:
+            gmm, gmm_joints = load_gmm_prior(cfg.pose_prior_path, nb - 1)
+            self._priors["prior"] = lambda state: gmm(state.pose[:, :gmm_joints].reshape(state.pose.shape[0], -1))
+        if cfg.vposer_path:
+            from pipeline.backends.smpl.vposer import load_vposer
+
+            vposer = load_vposer(cfg.vposer_path)
+            self._priors["vposer"] = lambda state: vposer(state.pose[:, :21])
+        self._soles = body.vertex_set(_sole_vertices(body))
+
+    def rest_keypoints(self) -> np.ndarray:
+        return self._rest_kp
+
+    def lever_arms(self) -> np.ndarray:
+        return _lever_arms(self.body, self._rest_kp[0], self._rest_J[0] - self._rest_J[0, 0])
+
+    def landmark_scale(self, cfg: FitConfig) -> float:
+        return 1.0  # FitConfig.landmark_step is anny's
+
+    def encode_shape(self, shape: torch.Tensor, s: float) -> torch.Tensor:
+        return shape * (_BETA_SCALE * s)
+
+    def decode_shape(self, v: torch.Tensor, s: float) -> torch.Tensor:
+        return v / (_BETA_SCALE * s)
+
+    def shape_of(self, u: torch.Tensor) -> torch.Tensor:
+        return u
+
+    def shape_deviation(self, u: torch.Tensor) -> torch.Tensor:
+        return u
+
+    def rest(self, u: torch.Tensor | None) -> Rest:
+        if u is None:
+            return self._rest0
+        b_rows = u[self._rows]
+        return Rest(self.body.rest_joints(u)[self._rows], b_rows)
+
+    def forward(self, rest: Rest, G_root: torch.Tensor, pose: torch.Tensor, root: torch.Tensor) -> Skeleton:
+        if rest.shape is None:
+            raise ValueError("SmplFitBody.forward: needs the rows' betas (Rest.shape), as SmplFitBody.rest gives")
+        G, x, R_local = forward(self.body, rest.joints, G_root, pose, root)
+        return _SmplSkeleton(G, x, keypoints(self.body, rest.shape, rest.joints, G, x, R_local), R_local)
+
+    def mesh_moment_factors(self) -> torch.Tensor:
+        return _mesh_moments(self.body, self._betas0)
+
+    def sole_heights(self, state: FitState) -> torch.Tensor:
+        sk = state.skeleton
+        if not isinstance(sk, _SmplSkeleton) or state.rest.shape is None:
+            raise ValueError("SmplFitBody.sole_heights: the state was not posed by SmplFitBody.forward")
+        return skin(self._soles, state.rest.shape, state.rest.joints, sk.G, sk.x, sk.R_local)[..., 2]
+
+    def joint_limit_penalty(self, state: FitState) -> torch.Tensor:
+        return joint_limit_penalty(state.pose, *self._limits)
+
+    def pose_priors(self) -> dict[str, PriorFn]:
+        return self._priors
+
+
+def smpl_fit_model(cfg: FitConfig, body: SmplBody | None = None) -> SmplFitBody:
+    """SMPL/SMPL-X for ``fit_sequence``: ``body``, or the model ``cfg.body_model``,
+    ``body_model_path`` and ``smpl_gender`` name (``ValueError`` naming what is missing)."""
+    return SmplFitBody(body or smpl_body(cfg.body_model, cfg.body_model_path, cfg.smpl_gender))
+
+
+def fit_smpl(
+    observations: list[PersonObservations],
+    P_px: np.ndarray,
+    cfg: FitConfig,
+    body: SmplBody | None = None,
+    progress: ProgressFn | None = None,
 ) -> SmplFitOutput:
-    nf, nv = observations[0].kp3d_m.shape[0], P_px.shape[0]
-    npers, nb, nj = len(observations), body.n_joints, len(COCO17_FEET)
-    timings: dict[str, float] = {}
+    """Fit betas and per-frame pose of every person (``fit_sequence`` with SMPL/SMPL-X).
 
-    t0, c0 = time.perf_counter(), time.process_time()
-    betas0 = _fit_betas(body, observations, cfg)
-    timings["shape_s"] = time.perf_counter() - t0
-    timings["shape_cpu_s"] = time.process_time() - c0
-
-    t0, c0 = time.perf_counter(), time.process_time()
-    with torch.no_grad():
-        rest_kp = _rest_keypoints(body, betas0).numpy()
-        rest_J = body.rest_joints(betas0).numpy()
-    R0 = np.zeros((npers, nf, 3, 3))
-    T0 = np.zeros((npers, nf, 3))
-    present = np.zeros((nf, npers), dtype=bool)
-    for p, o in enumerate(observations):
-        R0[p], T0[p], _ = init_roots(rest_kp[p], o)
-        present[:, p] = (o.w3d > 0).sum(axis=1) >= cfg.min_valid_joints
-
-    n = npers * nf  # rows: person-major (row = p * nf + f)
-    row_person = torch.arange(npers).repeat_interleave(nf)
-    R0_t = torch.as_tensor(R0.reshape(n, 3, 3))
-    kp3d = torch.as_tensor(np.stack([o.kp3d_m for o in observations]).reshape(n, nj, 3))
-    w3d = torch.as_tensor(np.stack([o.w3d for o in observations]).reshape(n, nj))
-    uv = torch.as_tensor(np.stack([o.uv_px for o in observations], axis=1).reshape(nv, n, nj, 2))
-    w2d = torch.as_tensor(np.stack([o.w2d for o in observations], axis=1).reshape(nv, n, nj))
-    P_t = torch.as_tensor(P_px, dtype=torch.float64)
-
-    lo = torch.full((nb - 1, 3), -1e6, dtype=torch.float64)
-    hi = torch.full((nb - 1, 3), 1e6, dtype=torch.float64)
-    for j, name in enumerate(body.joint_names[1:]):
-        if name in SMPL_LIMITS:
-            lo[j] = torch.as_tensor([r[0] for r in SMPL_LIMITS[name]])
-            hi[j] = torch.as_tensor([r[1] for r in SMPL_LIMITS[name]])
-    axes = torch.eye(3, dtype=torch.float64).expand(nb - 1, 3, 3)
-    gmm, gmm_joints = None, 0
-    if cfg.pose_prior_path == "builtin":
-        logger.info(
-            "smpl fit: the shipped GMM pose prior is for anny's rig; not used for %s", body.body_model
-        )
-    elif cfg.pose_prior_path:
-        gmm, gmm_joints = load_gmm_prior(cfg.pose_prior_path, nb - 1)
-    vposer = None
-    if cfg.vposer_path:
-        from pipeline.backends.smpl.vposer import load_vposer
-
-        vposer = load_vposer(cfg.vposer_path)
-    moments = _mesh_moments(body, betas0) if cfg.w_smooth > 0 else None
-    soles = body.vertex_set(_sole_vertices(body))
-    foot = torch.as_tensor(joint_idx(FOOT_JOINTS))
-    dom = torch.as_tensor(
-        np.where(
-            body.kp_joint >= 0,
-            body.kp_joint,
-            body.keypoint_vertices.weights.numpy().argmax(1)[np.maximum(body.kp_vertex, 0)],
-        )
-    )
-
-    root0 = torch.as_tensor(T0.reshape(n, 3)).clone()
-    J_rows0 = torch.as_tensor(rest_J)[row_person]
-    b_rows0 = betas0[row_person]
-    with torch.no_grad():
-        pose0 = _init_limbs(
-            body, R0_t, torch.zeros(n, nb - 1, 3, dtype=torch.float64), root0, J_rows0, b_rows0, kp3d, w3d
-        )
-    timings["init_s"] = time.perf_counter() - t0
-
-    lever = _lever_arms(body, rest_kp[0], rest_J[0] - rest_J[0, 0])
-    s_rot = torch.as_tensor(lever)[None, :, None]
-    s_root = float(np.sqrt(nj))
-    s_const = float(np.sqrt(nf))
-    s_beta = 0.15 * s_const
-    delta_s = torch.zeros(n, 3, dtype=torch.float64, requires_grad=True)
-    pose_s = (pose0 * s_rot[:, 1:]).requires_grad_(True)
-    root_s = (root0 * s_root).requires_grad_(True)
-    offsets_s = torch.zeros(npers, nj, 3, dtype=torch.float64, requires_grad=cfg.calibrate_landmarks)
-    betas_s = (betas0 * s_beta).requires_grad_(cfg.refine_shape)
-    params = [delta_s, pose_s, root_s]
-    params += ([offsets_s] if cfg.calibrate_landmarks else []) + ([betas_s] if cfg.refine_shape else [])
-
-    def state() -> tuple[torch.Tensor, ...]:
-        """Physical-unit variables and the posed skeleton."""
-        delta, pose, root = delta_s / s_rot[:, 0], pose_s / s_rot[:, 1:], root_s / s_root
-        offsets, betas = offsets_s / s_const, betas_s / s_beta
-        b_rows = betas[row_person]
-        J = body.rest_joints(betas)[row_person]
-        G_root = roma.rotvec_to_rotmat(delta) @ R0_t
-        G, x, R_local = forward(body, J, G_root, pose, root)
-        kp = keypoints(body, b_rows, J, G, x, R_local)
-        if cfg.calibrate_landmarks:
-            kp = kp + (G[:, dom] @ offsets[row_person][..., None])[..., 0]
-        return pose, offsets, betas, b_rows, J, G_root, G, x, R_local, kp
-
-    overlap = ProxyOverlap() if cfg.w_overlap > 0 and npers > 1 else None
-    present_t = torch.as_tensor(present.T.copy())
-    mesh_velocity = None
-    if moments is not None:
-        m_ = moments
-
-        def mesh_velocity(dA: torch.Tensor) -> torch.Tensor:
-            flat = dA.permute(0, 1, 3, 2, 4).reshape(npers, (nf - 1) * 3, nb * 4)
-            return (flat @ m_).square().sum()
-
-    def evaluate(
-        use_2d: bool, accel_weights: torch.Tensor | None
-    ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
-        pose, offsets, betas, b_rows, J, G_root, G, x, R_local, kp = state()
-        out = sequence_terms(
-            cfg, kp, kp3d, w3d, P_t, uv, w2d, use_2d, pose, G_root, G, x, J, npers, nf, mesh_velocity, accel_weights
-        )
-        if cfg.calibrate_landmarks:
-            out["landmarks"] = cfg.w_landmarks * offsets.square().sum()
-        if cfg.refine_shape:
-            out["shape"] = 1e-4 * betas.square().sum()
-        out["limits"] = cfg.w_limits * joint_limit_penalty(pose, axes, lo, hi)
-        if cfg.w_prior > 0 and gmm is not None:
-            out["prior"] = cfg.w_prior * gmm(pose[:, :gmm_joints].reshape(n, -1))
-        if cfg.w_prior > 0 and vposer is not None:
-            out["vposer"] = cfg.w_prior * vposer(pose[:, :21])
-        if cfg.w_ground > 0:
-            sole_z = skin(soles, b_rows, J, G, x, R_local)[..., 2]
-            out["ground"] = cfg.w_ground * ground_term(kp, foot, sole_z)
-        if overlap is not None:
-            out["overlap"] = cfg.w_overlap * overlap(kp.reshape(npers, nf, -1, 3), present_t)
-        return sum(out.values()), out, kp  # type: ignore[return-value]
-
-    accel_w = run_pose_passes(params, evaluate, cfg, npers, nf)
-    timings["pose_s"] = time.perf_counter() - t0
-    timings["pose_cpu_s"] = time.process_time() - c0
-
-    with torch.no_grad():
-        total, parts, _ = evaluate(cfg.use_2d, accel_w)
-        pose, _, betas, _, _, G_root, _, _, _, kp = state()
-        full = torch.cat([roma.rotmat_to_rotvec(G_root)[:, None], pose], dim=1)
-        root = root_s / s_root
-        d = (kp - kp3d).norm(dim=-1).reshape(npers, nf, -1)
-        w = w3d.reshape(npers, nf, -1)
-        per_person = ((d * w).sum(dim=(1, 2)) / w.sum(dim=(1, 2)).clamp(min=1e-9)).numpy()
-    terms = {k: float(v) for k, v in parts.items()}
-    logger.info(
-        "%s fit: %d persons x %d frames, loss %.4g %s, %s", body.rig, npers, nf, float(total), terms, timings
-    )
-    return SmplFitOutput(
-        joint_names=body.joint_names,
-        rig=body.rig,
-        shape=betas.numpy().copy(),
-        pose_aa=full.reshape(npers, nf, nb, 3).permute(1, 0, 2, 3).numpy().copy(),
-        root_m=root.reshape(npers, nf, 3).permute(1, 0, 2).numpy().copy(),
-        keypoints_m=kp.reshape(npers, nf, nj, 3).permute(1, 0, 2, 3).numpy().copy(),
-        present=present,
-        loss=per_person,
-        timings_s=timings,
-        loss_terms=terms,
-    )
-
-
-def _init_limbs(
-    body: SmplBody,
-    G_root: torch.Tensor,
-    pose: torch.Tensor,
-    root: torch.Tensor,
-    J: torch.Tensor,
-    b_rows: torch.Tensor,
-    kp3d: torch.Tensor,
-    w3d: torch.Tensor,
-) -> torch.Tensor:
-    """Swing each ``IK_DRIVERS`` joint so its child keypoint points at the triangulated one;
-    rows where that keypoint is unobserved keep their pose. Returns (n, joints - 1, 3)."""
-    pose = pose.clone()
-    for joint, child in IK_DRIVERS:
-        b = body.joint_names.index(joint)
-        k = COCO17_FEET.index(child)
-        G, x, R_local = forward(body, J, G_root, pose, root)
-        kp = keypoints(body, b_rows, J, G, x, R_local)
-        R = min_rotation(kp[:, k] - x[:, b], kp3d[:, k] - x[:, b])
-        local = G[:, body.parents[b]].transpose(-1, -2) @ R @ G[:, b]
-        pose[:, b - 1] = torch.where((w3d[:, k] > 0)[:, None], roma.rotmat_to_rotvec(local), pose[:, b - 1])
-    return pose
+    Args:
+        observations: one entry per person (same frame count), ``COCO17_FEET`` order.
+        P_px: (views, 3, 4) projection matrices to *undistorted* pixels.
+        cfg: the stage config; ``body_model``, ``body_model_path`` and ``smpl_gender`` pick the
+            model unless ``body`` is given.
+    Raises ``ValueError`` on inconsistent inputs or missing/unreadable model or prior files.
+    """
+    out = fit_sequence(smpl_fit_model(cfg, body), observations, P_px, cfg, progress)
+    return SmplFitOutput(**{f.name: getattr(out, f.name) for f in fields(out)})
