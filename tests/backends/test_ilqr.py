@@ -298,3 +298,24 @@ def test_reused_jacobians_are_the_previous_ones_with_fresh_cost_derivatives() ->
 def test_ilqr_config_refuses_zero_reuse() -> None:
     with pytest.raises(ValueError, match="jacobian_reuse must be an integer >= 1"):
         ILQRConfig(jacobian_reuse=0)
+
+
+def test_regularisation_follows_the_ratio_of_actual_to_expected_decrease() -> None:
+    from pipeline.backends.mujoco.ilqr import _updated_mu
+
+    cfg = ILQRConfig(regularisation="improvement_ratio")
+    # Expected decrease -(a dV1 + a^2 dV2) = 1.0 for a = 1, dV1 = -1.5, dV2 = 0.5.
+    assert _updated_mu(1.0, 0.9, 1.0, -1.5, 0.5, cfg) == pytest.approx(cfg.mu_down)  # well predicted: lower
+    assert _updated_mu(1.0, 0.05, 1.0, -1.5, 0.5, cfg) == pytest.approx(cfg.mu_up)  # poorly: raise
+    assert _updated_mu(1.0, 0.3, 1.0, -1.5, 0.5, cfg) == 1.0  # in between: keep
+    assert _updated_mu(1e-6, 0.9, 1.0, -1.5, 0.5, cfg) == cfg.mu_min  # bounded
+    assert _updated_mu(1.0, 0.05, 1.0, -1.5, 0.5, ILQRConfig()) == pytest.approx(ILQRConfig().mu_down)  # "success"
+
+
+def test_ilqr_with_the_improvement_ratio_still_descends() -> None:
+    model = mujoco.MjModel.from_xml_string(ARM_XML)
+    data = mujoco.MjData(model)
+    cost = TipCost(np.array([0.3, 0.0, 1.45]))
+    cfg = ILQRConfig(max_iter=15, rel_tol=0.0, regularisation="improvement_ratio")
+    hist = np.array(optimise(model, data, cost, np.zeros(2), np.zeros(2), np.zeros((30, 2)), cfg).cost_history)
+    assert np.all(np.diff(hist) <= 1e-12) and hist[-1] < 0.2 * hist[0]

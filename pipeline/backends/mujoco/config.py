@@ -167,6 +167,10 @@ class ILQRConfig:
     """Factor on μ after a failure, > 1."""
     mu_down: float = 0.3
     """Factor on μ after a success, in (0, 1)."""
+    regularisation: Literal["success", "improvement_ratio"] = "success"
+    """How μ follows an accepted step: ``success`` lowers it after every one;
+    ``improvement_ratio`` compares the actual with the expected decrease (MuJoCo MPC's
+    iLQG): lowered when the quadratic model predicted it well, raised when poorly."""
     n_alpha: int = 6
     """Line-search step sizes, log-spaced in [alpha_min, 1], >= 1."""
     alpha_min: float = 1e-2

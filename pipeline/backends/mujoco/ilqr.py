@@ -365,17 +365,21 @@ def optimise(
                 if bp is None:
                     mu = max(mu * cfg.mu_up, 1e-4)
                     continue
-                K, k, _, _ = bp
+                K, k, dV1, dV2 = bp
+                # Line search over the step sizes; step 0 (the nominal itself, what the
+                # feedback policy reproduces exactly) is a candidate too: a worse step is never taken.
                 best: Trajectory | None = None
+                best_alpha = 0.0
                 c0 = time.perf_counter()
-                for cand in _candidates(model, data, cost, qpos0, qvel0, nominal, K, k, alphas, act, t0, warm0, substeps, pool):
+                cands = _candidates(model, data, cost, qpos0, qvel0, nominal, K, k, alphas, act, t0, warm0, substeps, pool)
+                for a, cand in zip(alphas, cands, strict=True):
                     if cand.total < (best.total if best is not None else nominal.total):
-                        best = cand
+                        best, best_alpha = cand, float(a)
                 secs["rollouts"] += time.perf_counter() - c0
                 if best is not None:
+                    mu = _updated_mu(mu, nominal.total - best.total, best_alpha, dV1, dV2, cfg)
                     nominal = best
                     improved = True
-                    mu = max(mu * cfg.mu_down, cfg.mu_min)
                     break
                 mu = max(mu * cfg.mu_up, 1e-4)
             if not improved:
@@ -386,6 +390,23 @@ def optimise(
             if (prev - nominal.total) <= cfg.rel_tol * abs(prev):
                 break
         return ILQRResult(traj=nominal, cost_history=history, iterations=it, mu=mu, seconds=secs)
+
+
+def _updated_mu(mu: float, actual: float, alpha: float, dV1: float, dV2: float, cfg: ILQRConfig) -> float:
+    """The regularisation after an accepted step, from how well the quadratic model predicted
+    it (MuJoCo MPC's iLQG): the ratio of the actual to the expected decrease
+    ``-(alpha dV1 + alpha² dV2)``; a good prediction (ratio > 0.5) lowers μ, a poor one
+    (< 0.1) raises it, in between it stays. ``cfg.regularisation == "success"``: lowered
+    after every accepted step."""
+    if cfg.regularisation == "success":
+        return max(mu * cfg.mu_down, cfg.mu_min)
+    expected = -(alpha * dV1 + alpha * alpha * dV2)
+    ratio = actual / expected if expected > 0 else 0.0
+    if ratio > 0.5:
+        return max(mu * cfg.mu_down, cfg.mu_min)
+    if ratio < 0.1:
+        return min(mu * cfg.mu_up, cfg.mu_max)
+    return mu
 
 
 def _candidates(
