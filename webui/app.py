@@ -29,10 +29,12 @@ from webui.editing import (
     split_edit,
     swap_edit,
 )
+from webui.events import EventsView
 from webui.frames import FrameProvider, draw_overlay, overlay_for
 from webui.jobs import JobWatcher, job_fraction, job_summary
 from webui.panels.annotate import NO_TRACK, AnnotateHandles, make_annotate, parse_track_label, track_label
 from webui.panels.display import label_to_source, make_display, source_options
+from webui.panels.events import follow_frame, make_event_rows, make_events, set_events, wire_events
 from webui.panels.plots import make_plots, update_plots
 from webui.panels.timeline import make_timeline, set_problems
 from webui.panels.views import make_views
@@ -85,6 +87,8 @@ class ViewerApp:
 
         server.gui.add_markdown(f"**{self.data.config.name}** — {self._legend()}")
         self.timeline = make_timeline(server, self.data.n_frames)
+        everyone = [(p, self.palette.name(p)) for p in (self.data.person_ids or [0, 1])]
+        event_rows = make_event_rows(server, everyone, self.data.n_frames)
         tabs = server.gui.add_tab_group()
         with tabs.add_tab("Cameras"):
             sizes = []
@@ -100,6 +104,8 @@ class ViewerApp:
                 self.annotate = make_annotate(server, self.data.camera_names, athletes)
         with tabs.add_tab("Plots"):
             self.plots = make_plots(server, compute_series(self.data, self._default_source()), self.palette)
+        with tabs.add_tab("Events"):
+            self.events = make_events(server, [n for _, n in everyone], event_rows)
         with tabs.add_tab("Display"):
             self.display = make_display(server, list(self.data.keypoints))
         self.opts = DisplayOptions(source=label_to_source(self.display.source.value))
@@ -107,6 +113,7 @@ class ViewerApp:
         self._attach_heavy()
         self.persons.build()
         set_problems(self.timeline, self.problems, self.data.n_frames)
+        set_events(self.events, self.events_view(), self.data.n_frames)
         self._wire()
         self._threads = [
             threading.Thread(target=self._render_loop, name="render", daemon=True),
@@ -142,6 +149,10 @@ class ViewerApp:
                 xy = np.median(kp.xyz_m[kp.valid][:, :2], axis=0)
                 return float(xy[0]), float(xy[1])
         return 0.0, 0.0
+
+    def events_view(self) -> EventsView:
+        names = {p: self.palette.name(p) for p in self.data.person_ids}
+        return EventsView(self.data.events, self.data.series, names)
 
     def _default_source(self) -> str:
         for s in ("physics", "fit", "filtered"):
@@ -284,6 +295,7 @@ class ViewerApp:
             self.persons.build()
             self.display.source.options = source_options(list(data.keypoints))
             set_problems(self.timeline, self.problems, data.n_frames)
+            set_events(self.events, self.events_view(), data.n_frames)
             update_plots(self.plots, compute_series(data, self.opts.source), self.palette)
             self.reloads += 1
         self.request_render()
@@ -296,7 +308,13 @@ class ViewerApp:
         @tl.frame.on_update
         def _(_: Any) -> None:
             self.frame = int(tl.frame.value)
+            follow_frame(self.events, self.frame)
             self.request_render()
+
+        def set_frame(f: int) -> None:
+            tl.frame.value = f  # type: ignore[misc]
+
+        wire_events(self.events, self.events_view, lambda: self.frame, set_frame, lambda: self.data.n_frames)
 
         @tl.next_problem.on_click
         def _(_: Any) -> None:

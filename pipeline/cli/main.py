@@ -29,6 +29,7 @@ BENCHES = {
     "video": "pipeline.bench.video",
     "shelf": "pipeline.bench.shelf",
     "footage": "pipeline.bench.footage",
+    "analytics": "pipeline.bench.analytics",
     "server": "server.loadtest",
 }
 
@@ -223,12 +224,22 @@ def export(
             "it was adopted) as a Pose2Sim/anipose TOML, instead of keypoints.",
         ),
     ] = False,
+    events: Annotated[
+        str | None,
+        typer.Option("--events", help="Export the analyze stage's events (punches, slips, ducks, clinches) as csv or json."),
+    ] = None,
 ) -> None:
-    """Export 3D keypoints (JSON as documented in the README, or NPZ), or with --calibration the calibration (TOML)."""
+    """Export 3D keypoints (JSON as documented in the README, or NPZ), with --calibration the calibration
+    (TOML), or with --events csv|json the boxing events."""
     from pipeline.schema import SessionConfig
 
     try:
         cfg = SessionConfig.load(session)
+        if calibration and events is not None:
+            raise ValueError("--calibration and --events export different things; give one")
+        if events is not None:
+            path = _export_events(session, cfg, events, out)
+            return
         if calibration:
             path = out or (session / "calibration_refined.toml")
             _check_out(path)
@@ -247,6 +258,56 @@ def export(
         _fail(str(e))
         return
     console.print(f"wrote {path} ({chosen}, {kp.n_frames} frames, {kp.n_persons} persons)")
+
+
+def _export_events(session: Path, cfg: Any, fmt: str, out: Path | None) -> Path:
+    from pipeline.io.events_export import export_events, load_analytics
+
+    if fmt not in ("csv", "json"):
+        raise ValueError(f"--events must be csv or json, got {fmt!r}")
+    path = out or (session / f"events.{fmt}")
+    _check_out(path)
+    ev, _, source = load_analytics(session)
+    names = {i: n for i, n in enumerate(cfg.athletes)}
+    path.write_text(export_events(ev, fmt, names, source))  # type: ignore[arg-type]
+    console.print(f"wrote {path} ({ev.n_punches} punches, {ev.n_evades} slips/ducks, {ev.n_clinches} clinches; {source})")
+    return path
+
+
+@app.command()
+def analyze(
+    session: Annotated[Path, typer.Argument(help="Session folder.")],
+    run_stages: Annotated[
+        bool, typer.Option("--run/--no-run", help="First run the stages up to analyze that are missing or stale.")
+    ] = True,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Also write the summary to this JSON file.")] = None,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """Print the per-athlete boxing summary: punches by type and outcome, speeds, work rate,
+    slips and ducks, clinch time, stance, guard and distance."""
+    _setup_logging(verbose)
+    from pipeline.cli.analytics import summary_table
+    from pipeline.io.events_export import load_analytics
+    from pipeline.schema import SessionConfig
+    from pipeline.stages.analyze import summarize
+
+    try:
+        if json_out is not None:
+            _check_out(json_out)
+        cfg = SessionConfig.load(session)
+        if run_stages:
+            _check_stage_range(session, None, "analyze")
+            _run_with_progress(session, None, "analyze", False)
+        ev, series, source = load_analytics(session)
+    except (ValueError, LookupError) as e:
+        _fail(str(e))
+        return
+    summary = summarize(ev, series, {i: n for i, n in enumerate(cfg.athletes)})
+    summary["source"] = source
+    console.print(summary_table(summary, f"{cfg.name or session}: boxing summary ({source})"))
+    if json_out is not None:
+        json_out.write_text(json.dumps(summary, indent=1))
+        console.print(f"summary written to {json_out}")
 
 
 def _check_out(path: Path) -> None:

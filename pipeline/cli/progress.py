@@ -18,6 +18,7 @@ KEY_METRICS: dict[str, tuple[str, ...]] = {
     "triangulate": ("reproj_median_px", "mean_views"),
     "fit": ("reproj_median_px", "residual_3d_mm"),
     "physics": ("body_penetration_max_mm", "realtime_factor", "residual_force_mean_frac_bw"),
+    "analyze": ("punches", "clinches"),
     "evaluate": ("identity_accuracy_pct", "mpjpe_mm_filtered", "mpjpe_mm_fit", "mpjpe_mm_physics"),
 }
 """The metrics shown per stage in the summary table (those present, in this order)."""

@@ -15,6 +15,7 @@ STAGE_ORDER: tuple[str, ...] = (
     "triangulate",
     "fit",
     "physics",
+    "analyze",
     "evaluate",
 )
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 from dataclasses import dataclass
 
@@ -13,6 +14,7 @@ from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
 from pipeline.schema.joints import COCO17_FEET
 from pipeline.schema.keypoints3d import Keypoints3D
+from pipeline.synthetic import combos
 from pipeline.synthetic.choreo import Choreography, make_choreography
 from pipeline.synthetic.config import SyntheticConfig
 from pipeline.synthetic.motion import boxer_arms, boxer_trunk, punch_peak_speeds
@@ -21,6 +23,7 @@ from pipeline.synthetic.render2d import render_tracks
 from pipeline.synthetic.rig import make_rig
 from pipeline.synthetic.separate import separate_persons
 from pipeline.synthetic.skeleton import BodyDims, make_body
+from pipeline.synthetic.truth import BoutTruth, record_truth
 from pipeline.synthetic.walker import walker_joints
 
 log = logging.getLogger(__name__)
@@ -53,6 +56,8 @@ class SyntheticBout:
         bystander_xyz_m: (frames, 23, 3) the bystander's joints (empty (0, 23, 3) if none).
         punch_peak_speed_mps: (punches,) measured peak wrist speed of every scripted punch.
         choreography: the script (phases, punches, slips, intents).
+        truth: the labelled events (punches with type and outcome, feints, slips and
+            ducks, clinch frames; ``pipeline.synthetic.truth``).
     """
 
     rig: CameraRig
@@ -67,6 +72,7 @@ class SyntheticBout:
     bystander_xyz_m: np.ndarray
     punch_peak_speed_mps: np.ndarray
     choreography: Choreography
+    truth: BoutTruth
 
     def gt_association(self) -> Association:
         """The true identities of ``tracks`` as an ``Association`` (boxers 0 and 1, bystander -1):
@@ -101,6 +107,8 @@ def _calibrated_boxers(
         joints, contact, speeds = _boxers(ch, bodies, fps)
         targets = np.array([p.target_speed_mps for p in ch.punches])
         ratio = speeds / np.maximum(targets, 1e-9)
+        # A feint's speed is what its short path gives (the trunk's motion dominates it).
+        ratio[[k for k, p in enumerate(ch.punches) if p.feint]] = 1.0
         if np.all(np.abs(ratio - 1.0) < 0.03) or it == n_iter - 1:
             break
         punches = tuple(
@@ -126,9 +134,11 @@ def _planted_joints(contact: np.ndarray) -> np.ndarray:
 def make_bout(cfg: SyntheticConfig = SyntheticConfig()) -> SyntheticBout:
     """Generate the bout described by ``cfg`` (deterministic: same config -> same arrays)."""
     ss = np.random.SeedSequence(cfg.seed)
-    rng_body, rng_choreo, rng_rig, rng_render = (np.random.default_rng(s) for s in ss.spawn(4))
+    # A fifth child stream for the varied script: the first four are the same with or without it.
+    rng_body, rng_choreo, rng_rig, rng_render, rng_vary = (np.random.default_rng(s) for s in ss.spawn(5))
     bodies = [make_body(h, a, rng_body) for h, a in zip(BOXER_HEIGHTS_M, BOXER_ARM_RATIOS, strict=True)]
-    ch = make_choreography(cfg.n_frames, cfg.fps, cfg.clinch, rng_choreo)
+    vary = functools.partial(combos.vary, rng=rng_vary) if cfg.variety else None
+    ch = make_choreography(cfg.n_frames, cfg.fps, cfg.clinch, rng_choreo, vary)
     ch, boxers, contact, speeds = _calibrated_boxers(ch, bodies, cfg.fps)
     boxers = separate_persons(boxers, _planted_joints(contact))
     rig = make_rig(cfg.n_cameras, cfg.image_size_wh, cfg.fps, cfg.distortion, rng_rig)
@@ -185,4 +195,5 @@ def make_bout(cfg: SyntheticConfig = SyntheticConfig()) -> SyntheticBout:
         bystander_xyz_m=bystander,
         punch_peak_speed_mps=speeds,
         choreography=ch,
+        truth=record_truth(ch, boxers, speeds, cfg.fps),
     )

@@ -9,6 +9,7 @@ weight and the stance squareness are keyframed per phase and interpolated with P
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -16,7 +17,20 @@ import numpy as np
 
 from pipeline.synthetic.curves import keyframes, minjerk
 
-PunchKind = Literal["jab", "cross", "lead_hook"]
+PunchKind = Literal[
+    "jab", "cross", "lead_hook", "rear_hook", "lead_uppercut", "rear_uppercut", "body_jab", "body_cross"
+]
+PunchAim = Literal["legacy", "land", "block", "slip", "short"]
+"""How a punch's strike point is placed. ``legacy``: the original script (straights at the
+head where it was when the punch started, stopped 0.12 m short; the lead hook on a fixed
+arc). The others (``pipeline.synthetic.combos``, placed by ``pipeline.synthetic.strikes``):
+``land`` at contact with the target at the strike frame (the defender's guard opens),
+``block`` onto the defender's glove put in the way, ``slip`` at where the head was before
+the defender slipped or ducked, ``short`` at the head the defender pulls back (a body shot
+stops ``shortfall_m`` before contact)."""
+
+REAR_KINDS: frozenset[str] = frozenset({"cross", "rear_hook", "rear_uppercut", "body_cross"})
+"""Punch kinds thrown with the rear (right, both boxers are orthodox) hand."""
 
 PHASE_S: dict[str, tuple[float, float]] = {
     "exchange": (1.1, 1.4),
@@ -29,7 +43,16 @@ PHASE_S: dict[str, tuple[float, float]] = {
 CLINCH_DISTANCE_M = 0.45
 """Distance between the two stance centres while clinching (torsos then ~0.35 m apart)."""
 
-NOMINAL_PATH_M: dict[str, float] = {"jab": 0.45, "cross": 0.6, "lead_hook": 0.62}
+NOMINAL_PATH_M: dict[str, float] = {
+    "jab": 0.45,
+    "cross": 0.6,
+    "lead_hook": 0.62,
+    "rear_hook": 0.62,
+    "lead_uppercut": 0.5,
+    "rear_uppercut": 0.55,
+    "body_jab": 0.5,
+    "body_cross": 0.62,
+}
 """Rough fist path length per punch kind (first guess of the punch duration)."""
 
 
@@ -45,11 +68,27 @@ class Punch:
     hold_s: float
     back_s: float
     target_speed_mps: float
+    aim: PunchAim = "legacy"
+    amplitude: float = 1.0
+    """Fraction of the path travelled; < 1 is a feint (the fist starts and comes back)."""
+    shortfall_m: float = 0.0
+    """``aim="short"``: how far before contact the glove stops (metres)."""
+    counter: bool = False
+    """Thrown in answer to the opponent's combination."""
 
     @property
     def hand(self) -> str:
         """Hand that throws it (both boxers are orthodox: lead = left)."""
-        return "right" if self.kind == "cross" else "left"
+        return "right" if self.kind in REAR_KINDS else "left"
+
+    @property
+    def feint(self) -> bool:
+        return self.amplitude < 1.0
+
+    @property
+    def peak_s(self) -> float:
+        """Time of the strike (full extension)."""
+        return self.t0_s + self.out_s
 
     @property
     def end_s(self) -> float:
@@ -59,7 +98,7 @@ class Punch:
         """Extension 0 (guard) -> 1 (strike) -> 0 over time (C2)."""
         out = minjerk((t_s - self.t0_s) / self.out_s)
         back = minjerk((t_s - self.t0_s - self.out_s - self.hold_s) / self.back_s)
-        return out - back
+        return self.amplitude * (out - back)
 
 
 @dataclass(frozen=True)
@@ -71,6 +110,10 @@ class Slip:
     duration_s: float
     side: float
     depth_m: float
+    roll_rad: float = 0.28
+    """Peak sideways lean of the trunk (0 with a deep ``depth_m`` is a duck)."""
+    pitch_rad: float = 0.1
+    """Peak forward lean added to the trunk (negative: a pull back, away from a punch)."""
 
 
 @dataclass(frozen=True)
@@ -119,8 +162,21 @@ def _punch(person: int, kind: PunchKind, t0: float, rng: np.random.Generator) ->
     return Punch(person, kind, t0, out_s, 0.04, 1.6 * out_s, v)
 
 
-def make_choreography(n_frames: int, fps: float, clinch: bool, rng: np.random.Generator) -> Choreography:
-    """Script a bout of ``n_frames`` frames. Deterministic for a given ``rng`` state."""
+Vary = Callable[
+    [list[tuple[str, float, float]], list[tuple[float, float]]],
+    tuple[list[tuple[float, float]], list[Punch], list[Slip]],
+]
+"""``(phases, distance keys) -> (distance keys, punches, slips)``: re-scripts a bout
+(``pipeline.synthetic.combos.vary`` with its own random stream)."""
+
+
+def make_choreography(
+    n_frames: int, fps: float, clinch: bool, rng: np.random.Generator, vary: Vary | None = None
+) -> Choreography:
+    """Script a bout of ``n_frames`` frames. Deterministic for a given ``rng`` state.
+
+    ``vary`` replaces the punches, slips and distance keys after the base script is drawn,
+    so the base draws (phases, circling, drift) are the same with and without it."""
     t = np.arange(n_frames) / fps
     total = float(t[-1]) if n_frames > 1 else 0.0
     phases = _phases(total + 1e-6, clinch, rng)
@@ -171,6 +227,8 @@ def make_choreography(n_frames: int, fps: float, clinch: bool, rng: np.random.Ge
             t2 = t1 + 0.5 + rng.uniform(0.0, 0.15)
             punches += [_punch(first, "jab", t1, rng), _punch(1 - first, "jab", t2, rng)]
             slips += [Slip(1 - first, t1 - 0.03, 0.5, float(rng.choice([-1.0, 1.0])), 0.05)]
+    if vary is not None:
+        d_keys, punches, slips = vary(phases, d_keys)
     punches = [p for p in punches if p.t0_s >= 0.05 and p.end_s + 0.1 < total]
     slips = [s for s in slips if s.t0_s >= 0.0 and s.t0_s + s.duration_s < total]
 

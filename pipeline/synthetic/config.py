@@ -44,6 +44,12 @@ class SyntheticConfig:
     """Include clinch phases (bodies touching, arms around the other). When False the clinch
     phases are replaced by close-range exchanges without contact."""
 
+    variety: bool = False
+    """Re-script the punches (``pipeline.synthetic.combos``): random combinations of every
+    punch type, closing in so that they can land, an intended outcome per punch (land,
+    blocked, slipped or ducked, short), feints and counters. From its own random stream:
+    phases, clinches, circling and drift stay those of the same seed without it."""
+
     image_size_wh: tuple[int, int] = (1280, 720)
     """Image width and height in pixels (same for every camera)."""
 

@@ -14,9 +14,19 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 
 from pipeline.synthetic.choreo import CLINCH_DISTANCE_M, Choreography, Punch
+from pipeline.synthetic.combos import family
 from pipeline.synthetic.curves import apply, bump, minjerk, rot_z, rot_zyx, softmin
 from pipeline.synthetic.footwork import FeetTrack, StepParams, plan_feet
 from pipeline.synthetic.skeleton import BodyDims, J, face_offsets, foot_offsets, two_bone_ik
+from pipeline.synthetic.strikes import (
+    frame_at,
+    glove_centre,
+    guard_weight,
+    hook_offset,
+    plan_strike,
+    uppercut_offset,
+    wrist_for_glove,
+)
 
 SIDES = ("left", "right")
 
@@ -31,8 +41,24 @@ GUARD_FIST = {"left": np.array([0.30, 0.03, 0.05]), "right": np.array([0.20, -0.
 # Lead hook: cubic Bezier control points (facing frame, relative to the neck, 1.75 m boxer)
 # from the guard around to in front of the chin line; no cusp, so the fist keeps moving.
 HOOK_CTRL = np.array([GUARD_FIST["left"], [0.42, 0.30, 0.02], [0.60, 0.22, 0.02], [0.55, -0.05, 0.05]])
-TWIST_RAD = {"jab": -0.12, "cross": 0.65, "lead_hook": -0.5}
+TWIST_RAD = {
+    "jab": -0.12,
+    "cross": 0.65,
+    "lead_hook": -0.5,
+    "rear_hook": 0.55,
+    "lead_uppercut": -0.3,
+    "rear_uppercut": 0.4,
+    "body_jab": -0.12,
+    "body_cross": 0.6,
+}
 """Trunk rotation added at full extension of each punch kind."""
+BODY_SHOT_DIP_M = 0.08
+"""A body shot is thrown with bent knees: the pelvis drops this much at full extension
+(1.75 m boxer) and the trunk leans 0.1 rad further forward."""
+OPEN_GUARD_M = {"head": np.array([-0.08, 0.12, -0.2]), "body": np.array([-0.05, 0.15, 0.12])}
+"""Where a defender's fists go (facing frame, y outwards, 1.75 m boxer) while a punch
+scripted to land (or to be slipped) reaches his head (down and out of its way) or his
+body (up and out: the elbows leave the ribs)."""
 
 
 @dataclass(frozen=True)
@@ -154,11 +180,14 @@ def boxer_scalars(ch: Choreography, person: int, body: BodyDims) -> dict[str, np
     for p in ch.punches:
         if p.person == person:
             yaw_off = yaw_off + TWIST_RAD[p.kind] * p.profile(t)
+            if p.kind.startswith("body"):
+                crouch = crouch + BODY_SHOT_DIP_M * body.scale * p.profile(t)
+                pitch = pitch + 0.1 * p.profile(t)
     for s in ch.slips:
         if s.person == person:
             b = bump(t, s.t0_s, s.duration_s)
-            roll = roll - 0.28 * s.side * b
-            pitch = pitch + 0.1 * b
+            roll = roll - s.roll_rad * s.side * b
+            pitch = pitch + s.pitch_rad * b
             crouch = crouch + s.depth_m * b
     return {"yaw_off": yaw_off, "pitch": pitch, "roll": roll, "crouch": crouch}
 
@@ -204,11 +233,6 @@ def hook_path(arc_frac: np.ndarray) -> np.ndarray:
     return _bezier(_ARC_TO_U(np.clip(arc_frac, 0.0, 1.0)))
 
 
-def _frame_at(t_s: np.ndarray, time_s: float) -> int:
-    """Nearest frame index of ``time_s`` on the uniform frame clock ``t_s``."""
-    return int(np.clip(np.round(time_s * (len(t_s) - 1) / max(t_s[-1], 1e-9)), 0, len(t_s) - 1))
-
-
 def boxer_arms(
     ch: Choreography, person: int, body: BodyDims, me: Trunk, opp: Trunk, opp_body: BodyDims
 ) -> np.ndarray:
@@ -231,16 +255,19 @@ def boxer_arms(
         pole = apply(me.R_guard, np.array([-0.2, 0.35 * out, -1.0]))
         shoulder = joints[:, J[f"{side}_shoulder"]]
         punches: list[Punch] = [p for p in ch.punches if p.person == person and p.hand == side]
+        aimed: list[tuple[np.ndarray, np.ndarray, int]] = []  # (weight (F,), glove centre (3,), frame)
         for p in punches:
             prof = p.profile(t)[:, None]
-            fp = _frame_at(t, p.t0_s + p.out_s)
-            if p.kind == "lead_hook":
+            fp = frame_at(t, p.t0_s + p.out_s)
+            if p.aim != "legacy":
+                target, pole = _aimed_punch(p, prof, t, body, me, opp, target, pole, aimed)
+            elif p.kind == "lead_hook":
                 # Horizontal arc in the facing frame, travelled at arc-length rate ``prof``.
                 local = hook_path(prof[:, 0]) - HOOK_CTRL[0]
                 target = target + apply(me.R_guard, local * s)
                 pole = pole + 2.5 * prof * apply(me.R_guard, np.array([0.0, out, 0.3]))
             else:
-                aim = opp.head[_frame_at(t, p.t0_s)] - shoulder[fp]
+                aim = opp.head[frame_at(t, p.t0_s)] - shoulder[fp]
                 dist = float(np.linalg.norm(aim))
                 # Full extension, or stop at the opponent's face when he is closer.
                 reach = float(np.clip(dist - 0.12, 0.3 * body.arm_m, 0.9 * body.arm_m))
@@ -250,11 +277,86 @@ def boxer_arms(
         # lead hand over his shoulder and the rear hand under his arm, so the arms pass
         # each other on the sides they grip from (``separate_persons`` keeps a limb on the
         # side of another limb it first meets).
+        target = _guard_moves(ch, person, side, body, me, opp, target, aimed)
         detour = 4.0 * w * (1 - w) * apply(me.R_guard, np.array([0.0, 0.3 * out, 0.15 * out]) * s)
         target = (1 - w) * target + w * grips[side] + detour
         pole = (1 - w) * pole + w * apply(me.R_guard, np.array([0.0, out, -0.3]))
         place_arm(joints, body, side, target, pole)
+        for _ in range(2 if aimed else 0):
+            # The glove sits past the wrist along the forearm the IK chose: move the wrist
+            # target until the glove is where the strike (or block) wants it.
+            g = glove_centre(joints, side)
+            for weight, want, f in aimed:
+                target = target + weight[:, None] * (want - g[f])
+            place_arm(joints, body, side, target, pole)
     return joints
+
+
+def _aimed_punch(
+    p: Punch,
+    prof: np.ndarray,
+    t: np.ndarray,
+    body: BodyDims,
+    me: Trunk,
+    opp: Trunk,
+    target: np.ndarray,
+    pole: np.ndarray,
+    aimed: list[tuple[np.ndarray, np.ndarray, int]],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Wrist target and elbow pole with an aimed punch (``pipeline.synthetic.strikes``) added."""
+    st = plan_strike(p, t, me.joints, me.R_guard, opp.joints)
+    wrist = wrist_for_glove(st.glove, st.u, body.forearm_m)
+    fam = family(p.kind)
+    out = 1.0 if p.hand == "left" else -1.0
+    f = st.frame
+    if fam in ("hook", "uppercut"):
+        Rt = me.R_guard[f].T
+        start, end = Rt @ (target[f] - me.neck[f]), Rt @ (wrist - me.neck[f])
+        if fam == "hook":
+            local = hook_offset(prof[:, 0], start, end, out, body.scale)
+            pole = pole + 2.5 * prof * apply(me.R_guard, np.array([0.0, out, 0.3]))
+        else:
+            local = uppercut_offset(prof[:, 0], start, end, body.scale)
+        target = target + apply(me.R_guard, local)
+    else:
+        target = target + prof * (wrist - target)
+    if not p.feint:
+        aimed.append((prof[:, 0], st.glove, f))
+    return target, pole
+
+
+def _guard_moves(
+    ch: Choreography,
+    person: int,
+    side: str,
+    body: BodyDims,
+    me: Trunk,
+    opp: Trunk,
+    target: np.ndarray,
+    aimed: list[tuple[np.ndarray, np.ndarray, int]],
+) -> np.ndarray:
+    """The defender's ``side`` fist answering the opponent's aimed punches: onto the contact
+    point of a punch scripted to be blocked (the hand on the side it arrives on: opposite
+    the punching hand), out of the way of one scripted to land or to be slipped (both hands)."""
+    t = ch.t_s
+    out = 1.0 if side == "left" else -1.0
+    for p in ch.punches:
+        if p.person == person or p.aim not in ("block", "land", "slip") or p.feint:
+            continue
+        weight = guard_weight(t, p)
+        if p.aim in ("land", "slip"):
+            off = OPEN_GUARD_M["body" if p.kind.startswith("body") else "head"] * np.array([1.0, out, 1.0])
+            target = target + weight[:, None] * apply(me.R_guard, off * body.scale)
+            continue
+        if side == p.hand or p.kind.endswith("uppercut") or p.kind.startswith("body"):
+            continue  # the attacker's left arrives on the defender's right, and vice versa
+        st = plan_strike(p, t, opp.joints, opp.R_guard, me.joints)
+        spot = st.target - st.u * st.contact_m
+        shoulder = me.joints[st.frame, J[f"{side}_shoulder"]]
+        d = (spot - shoulder) / np.linalg.norm(spot - shoulder)
+        target = target + weight[:, None] * (wrist_for_glove(spot, d, body.forearm_m) - target)
+        aimed.append((weight, spot, st.frame))
+    return target
 
 
 def punch_peak_speeds(

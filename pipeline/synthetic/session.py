@@ -19,13 +19,16 @@ from pipeline.synthetic.config import SyntheticConfig
 
 log = logging.getLogger(__name__)
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 """Bump when the generator's output changes, so stale demo sessions are regenerated."""
 
 CALIBRATION = "inputs/calibration.toml"
 TRACKS = "inputs/tracks2d.npz"
 GROUND_TRUTH = "inputs/ground_truth.npz"
 GT_LABELS = "inputs/gt_labels.npz"
+GT_EVENTS = "inputs/ground_truth_events.npz"
+"""The choreography's labelled events (``pipeline.synthetic.truth.BoutTruth``)."""
+INPUT_FILES: tuple[str, ...] = (CALIBRATION, TRACKS, GROUND_TRUTH, GT_LABELS, GT_EVENTS)
 MARKER = "inputs/synthetic.json"
 """Records the generating config and the sha256 of every written input."""
 
@@ -48,14 +51,17 @@ def write_session(bout: SyntheticBout, session_dir: Path, name: str = "demo bout
     Files: ``session.json`` (``source="tracks"``), ``inputs/calibration.toml``,
     ``inputs/tracks2d.npz`` (``Tracks2D``), ``inputs/ground_truth.npz`` (``Keypoints3D``,
     source "gt") and ``inputs/gt_labels.npz`` (arrays ``person_of_det`` (dets,),
-    ``foot_contact`` (frames, 2, 2) and ``swap_frames`` (S, 2) [view, frame]). Every file
-    is written to a temporary name and renamed into place.
+    ``foot_contact`` (frames, 2, 2) and ``swap_frames`` (S, 2) [view, frame]) and
+    ``inputs/ground_truth_events.npz`` (``BoutTruth``: punches with type and outcome, feints,
+    slips and ducks, clinch frames). Every file is written to a temporary name and renamed
+    into place.
     """
     session_dir = Path(session_dir)
     (session_dir / "inputs").mkdir(parents=True, exist_ok=True)
     save_toml(bout.rig, session_dir / CALIBRATION)
     _write_npz_atomic(session_dir / TRACKS, to_arrays(bout.tracks))
     _write_npz_atomic(session_dir / GROUND_TRUTH, to_arrays(bout.gt))
+    _write_npz_atomic(session_dir / GT_EVENTS, to_arrays(bout.truth))
     _write_npz_atomic(
         session_dir / GT_LABELS,
         {
@@ -94,7 +100,7 @@ def _is_current(session_dir: Path, cfg: SyntheticConfig) -> bool:
     if rec.get("fingerprint") != want:
         return False
     files = rec.get("files", {})
-    for rel in (CALIBRATION, TRACKS, GROUND_TRUTH, GT_LABELS):
+    for rel in INPUT_FILES:
         p = session_dir / rel
         if not p.exists() or files.get(rel) != _sha256(p):
             return False
@@ -116,7 +122,7 @@ def make_demo_session(session_dir: Path, cfg: SyntheticConfig = SyntheticConfig(
     write_session(bout, session_dir, name="demo bout")
     rec = {
         "fingerprint": _fingerprint(cfg),
-        "files": {rel: _sha256(session_dir / rel) for rel in (CALIBRATION, TRACKS, GROUND_TRUTH, GT_LABELS)},
+        "files": {rel: _sha256(session_dir / rel) for rel in INPUT_FILES},
     }
     tmp = session_dir / (MARKER + ".tmp")
     tmp.write_text(json.dumps(rec, indent=2, sort_keys=True))

@@ -16,6 +16,7 @@ import numpy as np
 
 from pipeline.artifacts import ArtifactStore
 from pipeline.runner.rig import rig_for
+from pipeline.schema.analytics import AthleteSeries, BoutEvents
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
@@ -31,7 +32,7 @@ KeypointSource = Literal["filtered", "fit", "physics"]
 KEYPOINT_SOURCES: dict[str, str] = {name: RESULT_ARTIFACTS[name][0] for name in ("filtered", "fit", "physics")}
 """Viewer source name (``pipeline.schema.sources``) -> stage whose ``keypoints3d.npz`` it shows."""
 
-STAGES_READ: tuple[str, ...] = ("track", "associate", "triangulate", "fit", "physics", "evaluate")
+STAGES_READ: tuple[str, ...] = ("track", "associate", "triangulate", "fit", "physics", "analyze", "evaluate")
 
 
 @dataclass
@@ -51,6 +52,8 @@ class SessionData:
         physics_xml: path of ``physics/scene.xml`` or None.
         metrics: ``evaluate/metrics.json`` content (empty when absent).
         problems: ``evaluate/problems.npz`` (the per-frame problem flags) or None.
+        events: ``analyze/events.npz`` (punches, slips and ducks, clinches) or None.
+        series: ``analyze/series.npz`` (distance, stance, guard, work rate) or None.
         stamp: manifests' creation times, to notice a re-run.
     """
 
@@ -66,6 +69,8 @@ class SessionData:
     physics_xml: Path | None = None
     metrics: dict[str, Any] = field(default_factory=dict)
     problems: ProblemFlags | None = None
+    events: BoutEvents | None = None
+    series: AthleteSeries | None = None
     stamp: tuple[float, ...] = ()
     _row_keys: np.ndarray | None = None
     _row_order: np.ndarray | None = None
@@ -188,6 +193,8 @@ def load_session_data(session_dir: str | Path) -> SessionData:
         physics_xml=physics_xml,
         metrics=metrics,
         problems=problems,
+        events=_load_opt(store, "analyze", "events", BoutEvents),
+        series=_load_opt(store, "analyze", "series", AthleteSeries),
         stamp=_stamp(store),
     )
 

@@ -1,0 +1,196 @@
+"""Configuration of the ``analyze`` stage: ``AnalyzeConfig`` and its parts.
+
+How the thresholds were chosen and what they give: docs/design/analytics.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+AnalyzeSource = Literal["auto", "physics", "fit", "filtered"]
+
+
+def _positive(owner: str, **values: float) -> None:
+    bad = {k: v for k, v in values.items() if not v > 0}
+    if bad:
+        raise ValueError(f"{owner}: must be > 0, got {bad}")
+
+
+@dataclass(frozen=True)
+class PunchConfig:
+    """Punch detection: an excursion of a fist away from its guard position."""
+
+    guard_window_s: float = 1.5
+    """Span of the running median that gives each fist's guard position (seconds, > 0)."""
+    rest_speed_mps: float = 1.5
+    """Only frames where the fist moves slower than this relative to the neck count towards
+    the guard position (m/s, > 0)."""
+    min_excursion_m: float = 0.18
+    """Smallest distance of the fist from its guard at the strike (m, > 0): feints and
+    guard adjustments travel less."""
+    min_speed_mps: float = 2.0
+    """Smallest peak speed of the fist relative to the neck on the way out (m/s, > 0)."""
+    min_peak_speed_mps: float = 3.0
+    """Smallest peak speed of the fist in the world frame over the punch, on the analysed
+    keypoints (m/s, > 0); low, because smoothed 3D results flatten punches."""
+    min_forward_m: float = 0.12
+    """The fist must end this much farther forward (towards the opponent) than it started
+    (m): a punch goes at him; a block, a parry or a hand leaving a clinch grip does not."""
+    min_extension: float = 0.45
+    """Smallest shoulder-to-wrist distance at the strike over the arm's length, in [0, 1]."""
+    max_out_s: float = 0.3
+    """Longest way out (s, > 0): the start and the fastest frame are looked for this far
+    before the excursion's peak at most."""
+    arrive_frac: float = 0.3
+    """The strike is the first frame after the fastest one where the fist's speed (relative
+    to the neck) drops below this fraction of that fastest speed, in (0, 1)."""
+    clinch_margin_s: float = 0.3
+    """Excursions whose strike lies in a clinch, or within this of one, are the hands
+    taking or leaving the grip, not punches (s, >= 0)."""
+    edge_frac: float = 0.25
+    """A punch starts / ends where the excursion falls below this fraction of its peak, in (0, 1)."""
+    max_duration_s: float = 1.0
+    """Longer excursions are not punches (a hand held out, a clinch grip), seconds."""
+    speed_source: Literal["raw", "analysed"] = "raw"
+    """Where the peak glove speed is measured. ``raw``: on the unfiltered triangulation when
+    the stage gets it (``punches.raw_peak_speed``: filters and the fit's smoothness prior
+    flatten a punch's peak); ``analysed``: the analysed keypoints' largest frame-to-frame speed."""
+    raw_speed_max_ratio: float = 2.0
+    """The raw measurement is kept between the analysed speed and this multiple of it (>= 1),
+    so that a raw triangulation outlier cannot make a punch out of a reach."""
+    max_gap_frames: int = 4
+    """Gaps in a joint's estimate up to this many frames are interpolated (>= 0)."""
+
+    def __post_init__(self) -> None:
+        _positive("PunchConfig", guard_window_s=self.guard_window_s, rest_speed_mps=self.rest_speed_mps,
+                  min_excursion_m=self.min_excursion_m, min_speed_mps=self.min_speed_mps,
+                  min_peak_speed_mps=self.min_peak_speed_mps, max_duration_s=self.max_duration_s,
+                  max_out_s=self.max_out_s)  # fmt: skip
+        if not self.raw_speed_max_ratio >= 1.0:
+            raise ValueError(f"PunchConfig.raw_speed_max_ratio must be >= 1, got {self.raw_speed_max_ratio}")
+        if not (0.0 < self.edge_frac < 1.0 and 0.0 < self.arrive_frac < 1.0 and 0.0 <= self.min_extension <= 1.0):
+            raise ValueError(
+                f"PunchConfig: edge_frac and arrive_frac must be in (0, 1), min_extension in [0, 1]; got "
+                f"{self.edge_frac}, {self.arrive_frac}, {self.min_extension}"
+            )
+        if self.max_gap_frames < 0 or self.clinch_margin_s < 0:
+            raise ValueError(
+                f"PunchConfig: max_gap_frames and clinch_margin_s must be >= 0, got {self.max_gap_frames}, {self.clinch_margin_s}"
+            )
+
+
+@dataclass(frozen=True)
+class TypeConfig:
+    """Punch type rules, on the fist's path from the guard to the strike in the boxer's
+    facing frame (x towards the opponent, y to his left, z up)."""
+
+    uppercut_min_rise: float = 0.6
+    """An uppercut arrives rising: the upward share of its arrival direction (from the
+    fastest frame of the way out to the strike) is at least this, in (0, 1)."""
+    hook_min_bulge_m: float = 0.08
+    """A hook's path bulges outwards (to the punching side) from the straight line between
+    its start and its strike by at least this (m, > 0)."""
+    body_level_frac: float = 0.9
+    """A straight punch is a body shot when the fist at the strike is below this fraction of
+    the way from the opponent's mid-hip to his mid-shoulder height, in (0, 1.5)."""
+
+    def __post_init__(self) -> None:
+        _positive("TypeConfig", hook_min_bulge_m=self.hook_min_bulge_m)
+        if not 0.0 < self.uppercut_min_rise < 1.0:
+            raise ValueError(f"TypeConfig.uppercut_min_rise must be in (0, 1), got {self.uppercut_min_rise}")
+        if not 0.0 < self.body_level_frac < 1.5:
+            raise ValueError(f"TypeConfig.body_level_frac must be in (0, 1.5), got {self.body_level_frac}")
+
+
+@dataclass(frozen=True)
+class OutcomeConfig:
+    """Target region and outcome, from the gaps between the glove and the opponent's head,
+    trunk and arms (``pipeline.evaluate.glove_contact``) around the strike."""
+
+    contact_tol_m: float = 0.04
+    """A gap up to this counts as contact (m, >= 0): it absorbs the 3D estimate's error."""
+    target_radius_m: float = 0.2
+    """A missed punch's target region is the nearest one within this gap, else "none" (m, >= 0)."""
+    window_frames: int = 2
+    """Frames either side of the strike where contact is looked for (>= 0)."""
+    use_contacts: bool = True
+    """Use the physics stage's recorded contacts (glove or forearm on the opponent's head,
+    trunk or arms) when analysing the physics result; they decide where they exist."""
+
+    def __post_init__(self) -> None:
+        if self.contact_tol_m < 0 or self.target_radius_m < 0 or self.window_frames < 0:
+            raise ValueError(
+                f"OutcomeConfig: contact_tol_m, target_radius_m and window_frames must be >= 0, got "
+                f"{self.contact_tol_m}, {self.target_radius_m}, {self.window_frames}"
+            )
+
+
+@dataclass(frozen=True)
+class DefenceConfig:
+    """Slips and ducks (the defender's head leaving a punch's line) and clinches."""
+
+    slip_min_m: float = 0.12
+    """Sideways head displacement across the punch's line that makes a slip (m, > 0)."""
+    duck_min_m: float = 0.12
+    """Head drop that makes a duck (m, > 0)."""
+    evade_before_s: float = 0.3
+    """The head's position this long before the strike is the reference (s, > 0)."""
+    clinch_torso_m: float = 0.6
+    """A clinch frame has the torso centres (mean of shoulders and hips) closer than this (m, > 0)."""
+    clinch_wrap_m: float = 0.42
+    """... and a wrist of each athlete within this of the other's torso centre (m, > 0)."""
+    clinch_min_s: float = 0.3
+    """Clinches shorter than this are dropped; gaps shorter than this are bridged (s, > 0)."""
+
+    def __post_init__(self) -> None:
+        _positive("DefenceConfig", slip_min_m=self.slip_min_m, duck_min_m=self.duck_min_m,
+                  evade_before_s=self.evade_before_s, clinch_torso_m=self.clinch_torso_m,
+                  clinch_wrap_m=self.clinch_wrap_m, clinch_min_s=self.clinch_min_s)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class RingConfig:
+    """Stance and guard series."""
+
+    square_m: float = 0.08
+    """Feet level to within this along the line to the opponent make a square stance (m, >= 0)."""
+    stance_smooth_s: float = 0.3
+    """Running median of the foot offset before the stance is decided (s, >= 0)."""
+    chin_below_ears_m: float = 0.1
+    """The chin is taken this far below the ears' midpoint (m, >= 0)."""
+
+    def __post_init__(self) -> None:
+        if self.square_m < 0 or self.stance_smooth_s < 0 or self.chin_below_ears_m < 0:
+            raise ValueError(
+                f"RingConfig: square_m, stance_smooth_s and chin_below_ears_m must be >= 0, got "
+                f"{self.square_m}, {self.stance_smooth_s}, {self.chin_below_ears_m}"
+            )
+
+
+@dataclass(frozen=True)
+class WorkRateConfig:
+    """Punches per minute."""
+
+    window_s: float = 60.0
+    """Trailing window of the punches-per-minute series (s, > 0)."""
+    min_window_s: float = 5.0
+    """Near the start the window is the time elapsed, but at least this (s, > 0)."""
+
+    def __post_init__(self) -> None:
+        _positive("WorkRateConfig", window_s=self.window_s, min_window_s=self.min_window_s)
+
+
+@dataclass(frozen=True)
+class AnalyzeConfig:
+    """Boxing analytics on the 3D keypoints: punches, slips and ducks, clinches, stance,
+    guard, distance and work rate."""
+
+    source: AnalyzeSource = "auto"
+    """3D result analysed: ``auto`` = physics, else fit, else filtered (``pipeline.schema.sources``)."""
+    punch: PunchConfig = field(default_factory=PunchConfig)
+    types: TypeConfig = field(default_factory=TypeConfig)
+    outcome: OutcomeConfig = field(default_factory=OutcomeConfig)
+    defence: DefenceConfig = field(default_factory=DefenceConfig)
+    ring: RingConfig = field(default_factory=RingConfig)
+    work_rate: WorkRateConfig = field(default_factory=WorkRateConfig)

@@ -1,0 +1,199 @@
+"""Punch detection: a fist's excursion away from its guard position, relative to the neck.
+
+Per athlete and hand, in the athlete's facing frame (``body.facing_frames``), the wrist
+relative to the neck is ``r(t)``. The guard position ``g(t)`` is the running median of
+``r`` over the frames where the fist is nearly still (``rest_speed_mps``), and the
+excursion ``D(t) = |r - g|``. A punch is a peak of ``D`` at least ``min_excursion_m`` high
+whose way out reaches ``min_speed_mps`` (relative to the neck, so footwork and the trunk
+carrying the guard do not count); it starts and ends where ``D`` drops below
+``edge_frac`` of its peak. Its strike (peak frame) is the first frame after the fastest
+one on the way out where the fist has slowed to ``arrive_frac`` of that speed: the moment
+it arrives at full extension or on the target (also for a hook, whose excursion can be
+largest mid-arc). It must also go at the opponent (end farther forward than it started,
+by ``min_forward_m``), with the arm extended (``min_extension``) and fast in the world
+frame (``min_peak_speed_mps``), and away from a clinch (``clinch_margin_s``): hands taking
+or leaving a clinch grip, parries, guard adjustments and feints fail one of these.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+from scipy.signal import find_peaks
+
+from pipeline.stages.analyze.body import Body, fill_gaps, to_local
+from pipeline.stages.analyze.config import PunchConfig
+
+
+@dataclass(frozen=True)
+class HandTrack:
+    """Signals of one fist (frames = the analysed frames).
+
+    Fields: r (frames, 3) wrist - neck in the facing frame, metres; ok (frames,) bool;
+    speed_rel (frames,) |dr/dt| (central differences), m/s; excursion (frames,) distance
+    from the guard position, m (0 where not ok); wrist (frames, 3) world wrist; arm_m the
+    arm's length (median shoulder-elbow + elbow-wrist), metres.
+    """
+
+    hand: str
+    r: np.ndarray
+    ok: np.ndarray
+    speed_rel: np.ndarray
+    excursion: np.ndarray
+    wrist: np.ndarray
+    arm_m: float
+
+
+@dataclass(frozen=True)
+class Detection:
+    """One detected punch (row indices into the analysed frames)."""
+
+    hand: str
+    start: int
+    peak: int
+    end: int
+    fastest: int
+    """Row of the largest speed (relative to the neck) on the way out."""
+    excursion_m: float
+    out_speed_mps: float
+    peak_speed_mps: float
+    extension: float
+    confidence: float
+
+
+def _central_speed(x: np.ndarray, ok: np.ndarray, fps: float) -> np.ndarray:
+    v = np.zeros(x.shape[0])
+    if x.shape[0] < 3:
+        return v
+    d = np.linalg.norm(x[2:] - x[:-2], axis=1) * fps / 2.0
+    good = ok[2:] & ok[:-2] & ok[1:-1]
+    v[1:-1] = np.where(good, d, 0.0)
+    return v
+
+
+def _running_median(r: np.ndarray, use: np.ndarray, half: int) -> np.ndarray:
+    """(frames, 3) median of the rows of ``r`` where ``use``, over a centred window of
+    2 * half + 1 frames; where a window holds none, the median over every usable row."""
+    vals = np.where(use[:, None], r, np.nan)
+    pad = np.concatenate([np.full((half, 3), np.nan), vals, np.full((half, 3), np.nan)])
+    win = sliding_window_view(pad, 2 * half + 1, axis=0)  # (frames, 3, window)
+    cnt = np.sum(np.isfinite(win[:, 0]), axis=1)
+    out = np.zeros_like(r)
+    have = cnt > 0
+    if have.any():
+        out[have] = np.nanmedian(win[have], axis=2)
+    fallback = np.nanmedian(vals, axis=0) if use.any() else np.zeros(3)
+    out[~have] = fallback
+    return out
+
+
+def hand_track(body: Body, R: np.ndarray, r_ok: np.ndarray, hand: str, cfg: PunchConfig) -> HandTrack:
+    """The signals of ``body``'s ``hand`` fist in the facing frames ``R`` (valid ``r_ok``)."""
+    w, wok = body.point(f"{hand}_wrist")
+    e, eok = body.point(f"{hand}_elbow")
+    s, sok = body.point(f"{hand}_shoulder")
+    neck, nok = body.point("mid:left_shoulder+right_shoulder")
+    ok = wok & nok & r_ok
+    r = np.where(ok[:, None], to_local(R, w - neck), 0.0)
+    speed = _central_speed(r, ok, body.fps)
+    half = max(1, int(round(0.5 * cfg.guard_window_s * body.fps)))
+    guard = _running_median(r, ok & (speed < cfg.rest_speed_mps), half)
+    exc = np.where(ok, np.linalg.norm(r - guard, axis=1), 0.0)
+    arm_ok = wok & eok & sok
+    arm = np.linalg.norm(s - e, axis=1) + np.linalg.norm(e - w, axis=1)
+    arm_m = float(np.median(arm[arm_ok])) if arm_ok.any() else float("nan")
+    return HandTrack(hand, r, ok, speed, exc, w, arm_m)
+
+
+def _edge(exc: np.ndarray, ok: np.ndarray, k: int, level: float, step: int) -> int:
+    i = k
+    while 0 <= i + step < exc.shape[0] and ok[i + step] and exc[i] > level:
+        i += step
+    return i
+
+
+FIVE_POINT = np.array([1.0, -8.0, 0.0, 8.0, -1.0]) / 12.0
+"""Five-point central derivative (Savitzky-Golay, cubic, 5 frames), applied as a correlation."""
+SEVEN_POINT = np.array([22.0, -67.0, -58.0, 0.0, 58.0, 67.0, -22.0]) / 252.0
+"""Seven-point cubic Savitzky-Golay derivative: less noise, a little more smoothing."""
+
+
+def raw_peak_speed(
+    raw_xyz: np.ndarray, raw_ok: np.ndarray, raw_views: np.ndarray, start: int, peak: int, fps: float
+) -> float | None:
+    """Largest speed (m/s) of a joint over rows ``start`` .. ``peak + 1`` from its raw
+    positions (frames, 3), short gaps interpolated: the five-point derivative when the
+    joint was mostly triangulated from three views or more (median), else the seven-point
+    one (a two-view DLT has no redundancy: its noise would dominate a five-point peak).
+    None when under 60 % of the frames involved have a raw estimate."""
+    n = raw_xyz.shape[0]
+    lo, hi = max(0, start - 3), min(n, peak + 5)
+    ok = raw_ok[lo:hi]
+    if hi - lo < 7 or ok.mean() < 0.6 or ok.sum() < 2:
+        return None
+    x, _ = fill_gaps(raw_xyz[lo:hi], ok, hi - lo)
+    good = np.flatnonzero(ok)
+    x[: good[0]], x[good[-1] + 1 :] = x[good[0]], x[good[-1]]
+    views = float(np.median(raw_views[lo:hi][ok]))
+    kernel = FIVE_POINT if views >= 3 else SEVEN_POINT
+    half = kernel.size // 2
+    speeds = [
+        float(np.linalg.norm(kernel @ x[t - half : t + half + 1]) * fps)
+        for t in range(max(half, start - lo), min(hi - lo - half, peak - lo + 2))
+    ]
+    return max(speeds) if speeds else None
+
+
+def detect(body: Body, h: HandTrack, cfg: PunchConfig, clinch: np.ndarray | None = None) -> list[Detection]:
+    """The punches of one fist, in time order (see the module docstring). ``clinch``
+    (frames,) bool marks clinch frames (``PunchConfig.clinch_margin_s``)."""
+    exc, ok, v = h.excursion, h.ok, h.speed_rel
+    n = exc.shape[0]
+    if n < 5 or not ok.any():
+        return []
+    peaks, _ = find_peaks(exc, height=cfg.min_excursion_m, prominence=0.5 * cfg.min_excursion_m)
+    max_len = cfg.max_duration_s * body.fps
+    max_out = max(2, int(round(cfg.max_out_s * body.fps)))
+    near_clinch = np.zeros(n, dtype=bool)
+    if clinch is not None and clinch.any():
+        m = int(round(cfg.clinch_margin_s * body.fps))
+        for i in np.flatnonzero(clinch):
+            near_clinch[max(0, i - m) : i + m + 1] = True
+    shoulder, _ = body.point(f"{h.hand}_shoulder")
+    conf_idx = [body.names.index(f"{h.hand}_{j}") for j in ("wrist", "elbow", "shoulder") if f"{h.hand}_{j}" in body.names]
+    out: list[Detection] = []
+    for k0 in peaks:
+        level = cfg.edge_frac * exc[k0]
+        a, b = _edge(exc, ok, k0, level, -1), _edge(exc, ok, k0, level, +1)
+        a = max(a, k0 - max_out)
+        if b - a > max_len or b - a < 2:
+            continue
+        t_out = a + int(np.argmax(v[a : k0 + 1]))
+        v_out = float(v[t_out])
+        slow = np.flatnonzero(v[t_out + 1 : b + 1] < cfg.arrive_frac * v_out)
+        k = t_out + 1 + int(slow[0]) if slow.size else k0
+        if v_out < cfg.min_speed_mps or near_clinch[k]:
+            continue
+        ext = float(np.linalg.norm(h.wrist[k] - shoulder[k]) / h.arm_m) if np.isfinite(h.arm_m) else float("nan")
+        forward = float(h.r[k, 0] - h.r[a, 0])
+        if not ext >= cfg.min_extension or forward < cfg.min_forward_m:
+            continue
+        # The largest frame-to-frame displacement over the punch (out and back), as a
+        # speed: the same estimator the synthetic ground truth uses.
+        step = np.linalg.norm(np.diff(h.wrist[a : b + 1], axis=0), axis=1) * body.fps
+        good = ok[a:b] & ok[a + 1 : b + 1]
+        peak_speed = float(step[good].max()) if good.any() else v_out
+        if peak_speed < cfg.min_peak_speed_mps:
+            continue
+        score = np.clip((exc[k0] - cfg.min_excursion_m) / cfg.min_excursion_m + 0.5, 0.0, 1.0)
+        score *= np.clip((peak_speed - cfg.min_peak_speed_mps) / cfg.min_peak_speed_mps + 0.5, 0.0, 1.0)
+        kp_conf = float(body.confidence[a : b + 1][:, conf_idx].mean()) if conf_idx else 1.0
+        det = Detection(h.hand, a, k, b, t_out, float(exc[k0]), v_out, peak_speed, ext, float(score * kp_conf))
+        if out and a <= out[-1].end:  # one excursion, two bumps: keep the larger
+            if det.excursion_m > out[-1].excursion_m:
+                out[-1] = det
+            continue
+        out.append(det)
+    return out

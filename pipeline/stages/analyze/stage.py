@@ -1,0 +1,216 @@
+"""analyze: boxing analytics on a 3D result (pure: data in, data out).
+
+A readable chain: the athletes' joint tracks (``body``) -> per fist, the punches
+(``punches``) -> their type (``classify``) and outcome (``outcome``) -> the defender's
+slips and ducks and the clinches (``defence``) -> the per-frame series (``ring``,
+``workrate``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from pipeline.evaluate.glove_contact import glove_gaps
+from pipeline.schema.analytics import AthleteSeries, BoutEvents
+from pipeline.schema.keypoints3d import Keypoints3D
+from pipeline.schema.results import PhysicsResult
+from pipeline.stages.analyze import classify, defence, outcome, ring
+from pipeline.stages.analyze.body import Body, bodies, facing_frames, opponent_of
+from pipeline.stages.analyze.config import AnalyzeConfig
+from pipeline.stages.analyze.punches import detect, hand_track, raw_peak_speed
+from pipeline.stages.analyze.workrate import punches_per_min
+
+REQUIRED_JOINTS: tuple[str, ...] = (
+    "left_ear", "right_ear", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow",
+    "left_wrist", "right_wrist", "left_hip", "right_hip", "left_ankle", "right_ankle",
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class AnalyzeInputs:
+    """keypoints: the 3D result analysed; physics: the physics stage's result when the
+    keypoints are its own (its contacts then decide outcomes where they exist); raw: the
+    unfiltered triangulation, where the peak glove speeds are measured
+    (``PunchConfig.speed_source``)."""
+
+    keypoints: Keypoints3D
+    physics: PhysicsResult | None = None
+    raw: Keypoints3D | None = None
+
+
+@dataclass(frozen=True)
+class AnalyzeOutput:
+    events: BoutEvents
+    series: AthleteSeries
+    stats: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class _Punch:
+    person: int
+    hand: str
+    type: str
+    start: int
+    peak: int
+    end: int
+    speed: float
+    extension: float
+    target: str
+    outcome: str
+    confidence: float
+
+
+def _raw_wrists(raw: Keypoints3D | None, kp: Keypoints3D, pid: int) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Hand -> (frames, 3) raw wrist positions on ``kp``'s frames, their validity and their
+    view counts (empty without a raw result holding that athlete)."""
+    if raw is None or pid not in raw.person_ids.tolist():
+        return {}
+    p = raw.person_index(pid)
+    rows = np.searchsorted(raw.frame_indices, kp.frame_indices)
+    rows_c = np.minimum(rows, raw.n_frames - 1)
+    same = (rows < raw.n_frames) & (raw.frame_indices[rows_c] == kp.frame_indices)
+    out = {}
+    for hand in ("left", "right"):
+        if f"{hand}_wrist" in raw.joint_names:
+            j = raw.joint_names.index(f"{hand}_wrist")
+            out[hand] = (raw.xyz_m[rows_c, p, j], same & raw.valid[rows_c, p, j], raw.n_views[rows_c, p, j])
+    return out
+
+
+def _punches_of(me: Body, opp: Body | None, R: np.ndarray, r_ok: np.ndarray, stance_codes: np.ndarray,
+                cfg: AnalyzeConfig, physics: PhysicsResult | None, frames: np.ndarray, clinch: np.ndarray,
+                raw: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]) -> list[_Punch]:  # fmt: skip
+    """The punches of ``me`` at ``opp`` (facing frames ``R``, valid ``r_ok``); ``raw``: hand ->
+    raw wrist track for the speeds."""
+    need = [me.names.index(j) for j in REQUIRED_JOINTS]
+    out: list[_Punch] = []
+    for hand in ("left", "right"):
+        h = hand_track(me, R, r_ok, hand, cfg.punch)
+        for d in detect(me, h, cfg.punch, clinch):
+            speed = d.peak_speed_mps
+            if cfg.punch.speed_source == "raw" and hand in raw:
+                measured = raw_peak_speed(*raw[hand], d.start, d.peak, me.fps)
+                if measured is not None:
+                    speed = float(np.clip(measured, speed, cfg.punch.raw_speed_max_ratio * speed))
+            target, result = "none", "missed"
+            level = (float("nan"), float("nan"))
+            if opp is not None:
+                hip, hok = opp.point("mid:left_hip+right_hip")
+                sh, sok = opp.point("mid:left_shoulder+right_shoulder")
+                if hok[d.peak] and sok[d.peak]:
+                    level = (float(hip[d.peak, 2]), float(sh[d.peak, 2]))
+                rows = np.arange(max(0, d.peak - cfg.outcome.window_frames), min(me.n_frames, d.peak + cfg.outcome.window_frames + 1))
+                ok = me.ok[rows][:, need].all(axis=1) & opp.ok[rows][:, need].all(axis=1)
+                if ok.any():
+                    gaps = glove_gaps(me.xyz[rows[ok]], hand, opp.xyz[rows[ok]], me.names)
+                    target, result = outcome.from_gaps({k: float(v.min()) for k, v in gaps.items()}, cfg.outcome)
+                if physics is not None and cfg.outcome.use_contacts:
+                    hit = outcome.from_contacts(outcome.contact_regions(physics, me.person_id, hand, opp.person_id, frames[rows]))
+                    if hit is not None:
+                        target, result = hit
+            f = classify.path_features(h.r, d.start, d.fastest, d.peak, hand, float(h.wrist[d.peak, 2]), *level)
+            kind = classify.punch_type(f, classify.is_lead(hand, stance_codes, d.peak), cfg.types)
+            out.append(_Punch(me.person_id, hand, kind, d.start, d.peak, d.end, speed,
+                              d.extension if np.isfinite(d.extension) else 0.0, target, result, d.confidence))  # fmt: skip
+    return out
+
+
+def _check(kp: Keypoints3D) -> None:
+    missing = [j for j in REQUIRED_JOINTS if j not in kp.joint_names]
+    if missing:
+        raise ValueError(f"analyze: the keypoints lack joints {missing} (have {list(kp.joint_names)})")
+
+
+def run(inp: AnalyzeInputs, cfg: AnalyzeConfig = AnalyzeConfig()) -> AnalyzeOutput:
+    """Punches, evasions, clinches and series of every athlete in ``inp.keypoints``.
+
+    Raises ``ValueError`` when the keypoints lack a joint the analytics needs
+    (``REQUIRED_JOINTS``). Persons are analysed against their nearest other person.
+    """
+    kp = inp.keypoints
+    _check(kp)
+    frames = kp.frame_indices
+    bs = bodies(kp, cfg.punch.max_gap_frames)
+    opps = [opponent_of(bs, i) for i in range(len(bs))]
+    n_f, n_p = kp.n_frames, kp.n_persons
+    stance = np.zeros((n_f, n_p), dtype=np.int64)
+    width = np.zeros((n_f, n_p))
+    guard = np.zeros((n_f, n_p, 2))
+    valid = np.zeros((n_f, n_p), dtype=bool)
+    punches: list[_Punch] = []
+    clinch = np.zeros(n_f, dtype=bool)
+    dist, dist_ok = np.zeros(n_f), np.zeros(n_f, dtype=bool)
+    if len(bs) >= 2:
+        clinch = defence.clinch_frames(bs[0], bs[1], cfg.defence)
+        dist, dist_ok = ring.distance(bs[0], bs[1])
+    for i, me in enumerate(bs):
+        R, r_ok = facing_frames(me, opps[i])
+        stance[:, i], width[:, i] = ring.stance(me, R, r_ok, cfg.ring)
+        guard[:, i] = ring.guard_height(me, cfg.ring)
+        valid[:, i] = me.ok[:, [kp.joint_names.index(j) for j in REQUIRED_JOINTS]].all(axis=1)
+        raw = _raw_wrists(inp.raw, kp, me.person_id)
+        punches += _punches_of(me, opps[i], R, r_ok, stance[:, i], cfg, inp.physics, frames, clinch, raw)
+    punches.sort(key=lambda p: (p.peak, p.person))
+    by_id = {b.person_id: b for b in bs}
+    evades: list[tuple[int, defence.Evade, int]] = []
+    for k, p in enumerate(punches):
+        opp = opps[[b.person_id for b in bs].index(p.person)]
+        if opp is None or p.outcome == "landed" or p.type == "body_shot":
+            continue
+        ev = defence.evade(opp, by_id[p.person], p.hand, p.start, p.peak, cfg.defence)
+        if ev is not None:
+            evades.append((opp.person_id, ev, k))
+    rate = np.zeros((n_f, n_p))
+    for i, b in enumerate(bs):
+        strikes = frames[[p.peak for p in punches if p.person == b.person_id]]
+        rate[:, i] = punches_per_min(frames, kp.fps, strikes, cfg.work_rate) if n_f else 0.0
+    events = _events(kp, punches, evades, defence.runs(clinch))
+    series = AthleteSeries(
+        frame_indices=frames.astype(np.int64), fps=float(kp.fps), person_ids=kp.person_ids.astype(np.int64),
+        valid=valid, distance_m=dist, distance_valid=dist_ok, stance=stance, stance_width_m=width,
+        guard_height_m=guard, punches_per_min=rate,
+    )  # fmt: skip
+    stats = {
+        "punches": events.n_punches,
+        "landed": int(np.sum(events.punch_outcome == "landed")),
+        "blocked": int(np.sum(events.punch_outcome == "blocked")),
+        "missed": int(np.sum(events.punch_outcome == "missed")),
+        "slips": int(np.sum(events.evade_kind == "slip")),
+        "ducks": int(np.sum(events.evade_kind == "duck")),
+        "clinches": events.n_clinches,
+        "clinch_frames": int(clinch.sum()),
+    }
+    return AnalyzeOutput(events, series, stats)
+
+
+def _events(kp: Keypoints3D, punches: list[_Punch], evades: list[tuple[int, defence.Evade, int]],
+            clinches: list[tuple[int, int]]) -> BoutEvents:  # fmt: skip
+    fr = kp.frame_indices.astype(np.int64)
+    ev = BoutEvents.empty(kp.fps, kp.person_ids)
+
+    def ints(v: list[int]) -> np.ndarray:
+        return np.array(v, dtype=np.int64) if v else np.zeros(0, np.int64)
+
+    def strs(v: list[str]) -> np.ndarray:
+        return np.array(v, dtype=np.str_) if v else np.zeros(0, dtype="<U1")
+
+    def flts(v: list[float]) -> np.ndarray:
+        return np.array(v, dtype=np.float64) if v else np.zeros(0)
+
+    return BoutEvents(
+        fps=ev.fps, person_ids=ev.person_ids,
+        punch_person=ints([p.person for p in punches]), punch_hand=strs([p.hand for p in punches]),
+        punch_type=strs([p.type for p in punches]),
+        punch_start_frame=fr[ints([p.start for p in punches])], punch_peak_frame=fr[ints([p.peak for p in punches])],
+        punch_end_frame=fr[ints([p.end for p in punches])], punch_peak_speed_mps=flts([p.speed for p in punches]),
+        punch_extension=flts([p.extension for p in punches]), punch_target=strs([p.target for p in punches]),
+        punch_outcome=strs([p.outcome for p in punches]), punch_confidence=flts([p.confidence for p in punches]),
+        evade_person=ints([e[0] for e in evades]), evade_kind=strs([e[1].kind for e in evades]),
+        evade_start_frame=fr[ints([e[1].start for e in evades])], evade_peak_frame=fr[ints([e[1].peak for e in evades])],
+        evade_end_frame=fr[ints([e[1].end for e in evades])],
+        evade_displacement_m=flts([e[1].displacement_m for e in evades]), evade_punch=ints([e[2] for e in evades]),
+        clinch_start_frame=fr[ints([s for s, _ in clinches])], clinch_end_frame=fr[ints([e for _, e in clinches])],
+    )  # fmt: skip

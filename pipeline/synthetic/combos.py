@@ -1,0 +1,206 @@
+"""Randomised combinations, feints, counters and defences (``SyntheticConfig.variety``).
+
+The base script (``pipeline.synthetic.choreo``) throws the same pattern in every phase
+(jab-cross-hook, two hooks, two jabs), always out of range. With ``variety`` each
+exchange, close and range phase gets instead, from its own random stream:
+
+- a random combination of 1-4 punches of every kind (jab, cross, lead/rear hook,
+  lead/rear uppercut, straight body shots), hands mostly alternating;
+- the attacker closing the distance for it (0.9 m between stance centres for straight
+  punches, 0.75 m when the combination holds a hook or an uppercut);
+- an intended outcome per punch (``Punch.aim``): land, be blocked, be slipped or ducked
+  (a ``Slip`` of the defender timed on the strike), or fall short (the defender pulls
+  his head back, or a body shot stops short);
+- often a feint first (the fist starts and comes back, ``Punch.amplitude`` < 1) and
+  sometimes a counter by the defender (``Punch.counter``).
+
+The clinch phases, the circling and the drift of the pair are left as the base script
+drew them (the base draws come first, from the base stream), so a bout differs from its
+base version only by what is listed above.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.synthetic.choreo import NOMINAL_PATH_M, REAR_KINDS, Punch, PunchAim, PunchKind, Slip
+
+LEAD_KINDS: tuple[PunchKind, ...] = ("jab", "lead_hook", "lead_uppercut", "body_jab")
+REAR_KIND_LIST: tuple[PunchKind, ...] = ("cross", "rear_hook", "rear_uppercut", "body_cross")
+CLOSE_KINDS = frozenset({"lead_hook", "rear_hook", "lead_uppercut", "rear_uppercut"})
+STRAIGHT_ATTACK_M = 0.9
+"""Distance between the stance centres while straight punches are thrown (they reach)."""
+CLOSE_ATTACK_M = 0.75
+"""Distance while hooks and uppercuts are thrown."""
+SHORTFALL_M = (0.08, 0.14)
+"""Range of how far before contact a short body shot stops."""
+PULL_PITCH_RAD = -0.5
+"""Backward lean of a defender pulling away from a punch at his head (the head moves
+back ~0.3 m, so the straightened arm falls short)."""
+FEINT_AMPLITUDE = (0.2, 0.35)
+"""Range of the fraction of the path a feint travels."""
+AIMS: dict[str, tuple[tuple[PunchAim, ...], tuple[float, ...]]] = {
+    "straight": (("land", "block", "slip", "short"), (0.35, 0.25, 0.2, 0.2)),
+    "hook": (("land", "block", "slip", "short"), (0.35, 0.25, 0.2, 0.2)),
+    "uppercut": (("land", "short"), (0.6, 0.4)),
+    "body": (("land", "short"), (0.65, 0.35)),
+}
+"""Intended outcomes per family of punch, with their probabilities."""
+
+
+def family(kind: str) -> str:
+    if kind.startswith("body"):
+        return "body"
+    if kind.endswith("hook"):
+        return "hook"
+    if kind.endswith("uppercut"):
+        return "uppercut"
+    return "straight"
+
+
+@dataclass
+class _Plan:
+    punches: list[Punch]
+    slips: list[Slip]
+    d_keys: list[tuple[float, float]]
+
+
+def _speed_punch(
+    person: int, kind: PunchKind, t0: float, aim: PunchAim, rng: np.random.Generator, counter: bool = False
+) -> Punch:
+    v = float(rng.uniform(7.0, 8.5))
+    out_s = 1.875 * NOMINAL_PATH_M[kind] / v
+    short = float(rng.uniform(*SHORTFALL_M)) if aim == "short" else 0.0
+    return Punch(person, kind, t0, out_s, 0.04, 1.6 * out_s, v, aim=aim, shortfall_m=short, counter=counter)
+
+
+def _feint(person: int, t0: float, rng: np.random.Generator) -> Punch:
+    kind: PunchKind = "jab" if rng.uniform() < 0.6 else "cross"
+    amp = float(rng.uniform(*FEINT_AMPLITUDE))
+    out_s = float(rng.uniform(0.08, 0.12))
+    # Its speed is whatever the short path gives; it is not calibrated (``bout``).
+    v = 1.875 * amp * NOMINAL_PATH_M[kind] / out_s
+    return Punch(person, kind, t0, out_s, 0.0, 1.3 * out_s, v, aim="land", amplitude=amp)
+
+
+def _kinds(n: int, pool: tuple[PunchKind, ...], rng: np.random.Generator) -> list[PunchKind]:
+    """``n`` kinds from ``pool``, hands alternating with probability 0.8."""
+    out: list[PunchKind] = []
+    for i in range(n):
+        cands = list(pool)
+        if i > 0 and rng.uniform() < 0.8:
+            rear_prev = out[-1] in REAR_KINDS
+            cands = [k for k in pool if (k in REAR_KINDS) != rear_prev] or cands
+        out.append(cands[int(rng.integers(len(cands)))])
+    return out
+
+
+def _schedule(
+    person: int, kinds: list[PunchKind], t_start: float, t_stop: float, rng: np.random.Generator, counter: bool
+) -> list[Punch]:
+    """Punches of ``kinds`` from ``t_start``, each ending before ``t_stop``; a punch waits for the
+    previous one's strike (other hand) or its return (same hand)."""
+    out: list[Punch] = []
+    t = t_start
+    for kind in kinds:
+        fam = family(kind)
+        aims, probs = AIMS[fam]
+        aim = aims[int(rng.choice(len(aims), p=probs))]
+        if out:
+            prev = out[-1]
+            same = prev.hand == ("right" if kind in REAR_KINDS else "left")
+            t = prev.end_s + 0.06 if same else prev.peak_s + float(rng.uniform(0.03, 0.12))
+        p = _speed_punch(person, kind, t, aim, rng, counter)
+        if p.end_s > t_stop:
+            break
+        out.append(p)
+    return out
+
+
+def _evasions(punches: list[Punch], slips: list[Slip], rng: np.random.Generator) -> list[Punch]:
+    """The defender's move for every punch at the head aimed to be evaded: a ``Slip``
+    sideways or a duck (``slip``), a pull back (``short``: the straight arm falls short).
+    A punch whose defender is already moving (overlapping bumps would add up) is thrown
+    at him as he is."""
+    out: list[Punch] = []
+    for p in punches:
+        head = family(p.kind) != "body"
+        if p.aim not in ("slip", "short") or not head or p.feint:
+            out.append(p)
+            continue
+        d = 0.45
+        t0 = p.peak_s - 0.5 * d
+        busy = any(s.person == 1 - p.person and t0 < s.t0_s + s.duration_s and s.t0_s < t0 + d for s in slips)
+        if busy:
+            out.append(Punch(**{**p.__dict__, "aim": "land"}))
+            continue
+        if p.aim == "short":
+            slips.append(Slip(1 - p.person, t0, d, 0.0, 0.0, roll_rad=0.0, pitch_rad=PULL_PITCH_RAD))
+        elif family(p.kind) == "hook" or rng.uniform() < 0.4:  # duck under it
+            slips.append(Slip(1 - p.person, t0, d, 0.0, float(rng.uniform(0.2, 0.24)), roll_rad=0.0))
+        else:
+            slips.append(Slip(1 - p.person, t0, d, float(rng.choice([-1.0, 1.0])), 0.05, roll_rad=0.5))
+        out.append(p)
+    return out
+
+
+def _phase(kind: str, a: float, b: float, next_kind: str | None, rng: np.random.Generator) -> _Plan:
+    att = int(rng.integers(2))
+    pool: tuple[PunchKind, ...]
+    if kind == "range":
+        n, pool = int(rng.integers(1, 4)), ("jab", "cross", "body_jab")
+    elif kind == "close":
+        n, pool = int(rng.integers(2, 5)), ("lead_hook", "rear_hook", "lead_uppercut", "rear_uppercut", "body_jab", "body_cross")
+    else:
+        n, pool = int(rng.integers(2, 6)), LEAD_KINDS + REAR_KIND_LIST
+    kinds = _kinds(n, pool, rng)
+    if kind != "close" and rng.uniform() < 0.5:
+        kinds[0] = "jab"
+    t_first = a + float(rng.uniform(0.25, 0.4))
+    punches: list[Punch] = []
+    if rng.uniform() < 0.5:  # a feint while closing in
+        punches.append(_feint(att, a + float(rng.uniform(0.0, 0.05)), rng))
+        t_first = max(t_first, punches[-1].end_s + 0.04)
+    combo = _schedule(att, kinds, t_first, b - 0.05, rng, False)
+    punches += combo
+    if combo and rng.uniform() < 0.6:  # the defender counters
+        n_c = int(rng.integers(1, 3))
+        pool_c: tuple[PunchKind, ...] = pool if kind != "range" else ("jab", "cross")
+        t_c = combo[-1].peak_s + float(rng.uniform(0.08, 0.18))
+        punches += _schedule(1 - att, _kinds(n_c, pool_c, rng), t_c, b - 0.05, rng, True)
+    real = [p for p in punches if not p.feint]
+    close = any(p.kind in CLOSE_KINDS for p in real)
+    d_att = (CLOSE_ATTACK_M if close else STRAIGHT_ATTACK_M) + float(rng.uniform(-0.03, 0.03))
+    d_exit = 1.15 if next_kind == "clinch" else float(rng.uniform(1.35, 1.6))
+    keys: list[tuple[float, float]] = []
+    if real:
+        t_in = min(p.t0_s for p in real) - 0.08
+        t_out = max(p.end_s for p in real)
+        keys += [(t_in, d_att), (max(t_out, t_in + 0.05), d_att + 0.05)]
+        keys.append((max(b - 0.1, keys[-1][0] + 0.05), d_exit))
+    else:
+        keys.append((b - 0.1, d_exit))
+    return _Plan(punches, [], keys)
+
+
+def vary(
+    phases: list[tuple[str, float, float]],
+    base_d_keys: list[tuple[float, float]],
+    rng: np.random.Generator,
+) -> tuple[list[tuple[float, float]], list[Punch], list[Slip]]:
+    """The varied script: (distance keys, punches, slips). Clinch phases keep the base
+    distance keys; every other phase is re-scripted (see the module docstring)."""
+    clinch = [(a, b) for k, a, b in phases if k == "clinch"]
+    d_keys = [(t, d) for t, d in base_d_keys if t == 0.0 or any(a <= t <= b for a, b in clinch)]
+    punches: list[Punch] = []
+    slips: list[Slip] = []
+    for i, (kind, a, b) in enumerate(phases):
+        if kind == "clinch":
+            continue
+        nxt = phases[i + 1][0] if i + 1 < len(phases) else None
+        plan = _phase(kind, a, b, nxt, rng)
+        punches += _evasions(plan.punches, slips, rng)
+        d_keys += plan.d_keys
+    return d_keys, punches, slips
