@@ -39,6 +39,7 @@ from pipeline.geometry.bundle import (
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
+from pipeline.stages.observations import athlete_rows
 
 __all__ = ["BundleConfig", "CalibrateConfig", "CalibrationResult", "gather_pixels", "run", "summary"]
 
@@ -130,26 +131,12 @@ def gather_pixels(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dense observations, one row per (frame, person, joint).
 
-    Per (frame, person, view) the most confident associated detection is used (as in
-    ``triangulate.gather``). Returns ``uv_px`` (rows, views, 2) distorted pixels,
-    ``conf`` (rows, views) confidence (0 = none or invalid) and ``frame`` (rows,) indices.
+    Per (frame, person, view) the detection ``observations.athlete_rows`` picks. Returns
+    ``uv_px`` (rows, views, 2) distorted pixels, ``conf`` (rows, views) confidence (0 = none
+    or invalid) and ``frame`` (rows,) indices.
     """
-    if assoc.person_of_det.shape[0] != tracks.n_dets:
-        raise ValueError(
-            f"association has {assoc.person_of_det.shape[0]} rows but tracks have {tracks.n_dets}"
-        )
-    if tracks.n_views != n_views:
-        raise ValueError(f"tracks have {tracks.n_views} views but the rig has {n_views}")
     F, P, J, V = tracks.n_frames, assoc.n_persons, len(tracks.joint_names), n_views
-    lut = np.full(int(max(assoc.person_ids.max(initial=0), assoc.person_of_det.max(initial=0))) + 1, -1)
-    lut[assoc.person_ids] = np.arange(P)
-    pid = np.where(assoc.person_of_det >= 0, lut[np.maximum(assoc.person_of_det, 0)], -1)
-    rows = np.flatnonzero(pid >= 0)
-    rows = rows[np.argsort(assoc.confidence[rows], kind="stable")]
-    key = (tracks.frame[rows] * P + pid[rows]) * V + tracks.view[rows]
-    _, last = np.unique(key[::-1], return_index=True)
-    rows = rows[::-1][last]
-    f, p, v = tracks.frame[rows], pid[rows], tracks.view[rows]
+    rows, f, p, v = athlete_rows(tracks, assoc, n_views)
     ok = tracks.keypoint_valid[rows]
     dense_uv = np.zeros((F, P, V, J, 2))
     dense_conf = np.zeros((F, P, V, J))

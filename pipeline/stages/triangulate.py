@@ -33,6 +33,7 @@ from pipeline.stages.filtering import FilterConfig, RayObservations
 from pipeline.stages.filtering import run as run_filter
 from pipeline.stages.joint_fill import FillConfig
 from pipeline.stages.joint_fill import run as run_fill
+from pipeline.stages.observations import athlete_rows
 
 
 @dataclass(frozen=True)
@@ -89,21 +90,8 @@ def gather(
         conf: (frames, persons, joints, views) 2D confidence (0 = no observation).
         det_conf: (frames, persons, views) mean keypoint confidence of the detection used.
     """
-    if assoc.person_of_det.shape[0] != tracks.n_dets:
-        raise ValueError(f"association has {assoc.person_of_det.shape[0]} rows but tracks have {tracks.n_dets}")
-    if tracks.n_views != rig.n_views:
-        raise ValueError(f"tracks have {tracks.n_views} views but the rig has {rig.n_views} ({rig.names})")
     Fn, P, J, V = tracks.n_frames, assoc.n_persons, len(tracks.joint_names), rig.n_views
-    lut = np.full(int(max(assoc.person_ids.max(initial=0), assoc.person_of_det.max(initial=0))) + 1, -1)
-    lut[assoc.person_ids] = np.arange(P)
-    pid = np.where(assoc.person_of_det >= 0, lut[np.maximum(assoc.person_of_det, 0)], -1)
-    rows = np.flatnonzero(pid >= 0)
-    # One detection per (frame, person, view): keep the most confident (last after sorting).
-    rows = rows[np.argsort(assoc.confidence[rows], kind="stable")]
-    key = (tracks.frame[rows] * P + pid[rows]) * V + tracks.view[rows]
-    _, last = np.unique(key[::-1], return_index=True)
-    rows = rows[::-1][last]
-    f, p, v = tracks.frame[rows], pid[rows], tracks.view[rows]
+    rows, f, p, v = athlete_rows(tracks, assoc, rig.n_views)
     ok = tracks.keypoint_valid[rows] & (tracks.keypoint_conf[rows] >= min_conf)
     uv = undistort_rig_points(rig, np.where(ok[..., None], tracks.keypoints_px[rows], 0.0), v)
     Kinv = np.linalg.inv(rig.K)[v]
