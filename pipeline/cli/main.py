@@ -14,6 +14,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from pipeline.io.export.write import check_out as _check_out
+
 app = typer.Typer(
     name="cornerman",
     help="Physics-based multi-person 3D motion capture for combat sports.",
@@ -210,12 +212,27 @@ def status(session: Annotated[Path, typer.Argument(help="Session folder.")]) -> 
     console.print(table)
 
 
+def _format_help() -> str:
+    from pipeline.io.export import FORMATS
+
+    return "; ".join(f"{f.name}: {f.summary}" for f in FORMATS.values())
+
+
+_FORMAT_HELP = _format_help()
+
+
 @app.command()
 def export(
     session: Annotated[Path, typer.Argument(help="Session folder.")],
-    format: Annotated[str, typer.Option("--format", "-f", help="json or npz.")] = "json",
+    format: Annotated[str, typer.Option("--format", "-f", help=_FORMAT_HELP)] = "json",
     source: Annotated[str, typer.Option(help="best (fit, else filtered), latest (physics, else fit, else filtered), raw, filtered, fit or physics.")] = "best",
-    out: Annotated[Path | None, typer.Option("--out", "-o", help="Output file.")] = None,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Output file (a ZIP when the format writes several files).")] = None,
+    athlete: Annotated[
+        list[str], typer.Option("--athlete", "-a", help="Athlete name or person id, repeated; default every athlete.")
+    ] = [],  # noqa: B006
+    frames: Annotated[
+        str | None, typer.Option("--frames", help="Video frames FIRST:STOP (STOP excluded), e.g. 100:400; default all.")
+    ] = None,
     calibration: Annotated[
         bool,
         typer.Option(
@@ -229,8 +246,8 @@ def export(
         typer.Option("--events", help="Export the analyze stage's events (punches, slips, ducks, clinches) as csv or json."),
     ] = None,
 ) -> None:
-    """Export 3D keypoints (JSON as documented in the README, or NPZ), with --calibration the calibration
-    (TOML), or with --events csv|json the boxing events."""
+    """Export results in another tool's format (--format, see the README's Formats), with --calibration the
+    calibration (TOML), or with --events csv|json the boxing events."""
     from pipeline.schema import SessionConfig
 
     try:
@@ -245,19 +262,42 @@ def export(
             _check_out(path)
             _export_calibration(session, cfg, path)
             return
-        from pipeline.io.export import find_keypoints3d, write_export
+        from pipeline.io.export import (
+            ExportSelection,
+            default_out,
+            export_files,
+            get_format,
+            parse_frames,
+            write_files,
+        )
 
-        if format not in ("json", "npz"):
-            raise ValueError(f"--format must be json or npz, got {format!r}")
-        kp, chosen = find_keypoints3d(session, source)
+        fmt = get_format(format)
+        if out is not None:
+            _check_out(out)
         names = {i: n for i, n in enumerate(cfg.athletes)}
-        path = out or (session / f"keypoints3d_{chosen}.{format}")
-        _check_out(path)
-        write_export(kp, format, path, names)  # type: ignore[arg-type]
+        sel = ExportSelection(session, source, _athlete_ids(athlete, names), parse_frames(frames), names)
+        files = export_files(sel, fmt.name)
+        path = out or default_out(session, files, f"export_{fmt.name}")
+        write_files(files, path)
     except (ValueError, LookupError) as e:
         _fail(str(e))
         return
-    console.print(f"wrote {path} ({chosen}, {kp.n_frames} frames, {kp.n_persons} persons)")
+    what = ", ".join(files) if len(files) > 1 else fmt.summary
+    console.print(f"wrote {path} ({what})", soft_wrap=True)
+
+
+def _athlete_ids(given: list[str], names: dict[int, str]) -> tuple[int, ...]:
+    """Person ids for ``--athlete`` values (names, case-insensitive, or ids); ``ValueError`` otherwise."""
+    by_name = {n.lower(): i for i, n in names.items()}
+    ids = []
+    for a in given:
+        if a.lower() in by_name:
+            ids.append(by_name[a.lower()])
+        elif a.isdigit():
+            ids.append(int(a))
+        else:
+            raise ValueError(f"--athlete {a!r}: no athlete of that name (athletes: {', '.join(names.values()) or 'none named'})")
+    return tuple(dict.fromkeys(ids))
 
 
 def _export_events(session: Path, cfg: Any, fmt: str, out: Path | None) -> Path:
@@ -308,14 +348,6 @@ def analyze(
     if json_out is not None:
         json_out.write_text(json.dumps(summary, indent=1))
         console.print(f"summary written to {json_out}")
-
-
-def _check_out(path: Path) -> None:
-    """``ValueError`` for an output path that cannot be written (a folder, or a missing folder)."""
-    if path.is_dir():
-        raise ValueError(f"--out {path}: is a folder; give a file name")
-    if not path.parent.is_dir():
-        raise ValueError(f"--out {path}: folder {path.parent} does not exist")
 
 
 def _export_calibration(session: Path, cfg: Any, path: Path) -> None:

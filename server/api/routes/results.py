@@ -1,4 +1,4 @@
-"""Routes: results: 3D keypoints download (JSON/NPZ), raw artifacts, metrics."""
+"""Routes: results: exports in every format, 3D keypoints download (JSON/NPZ), raw artifacts, metrics."""
 
 from __future__ import annotations
 
@@ -47,6 +47,39 @@ def download_keypoints3d(
     fname = f"session{session_id}_keypoints3d_{chosen}.{format}"
     return Response(content=data, media_type=media,
                     headers={"Content-Disposition": f'attachment; filename="{fname}"', "X-Cornerman-Source": chosen})
+
+
+@router.get("/export")
+def download_export(
+    db: SessionDep,
+    _: CurrentUser,
+    session_id: int,
+    format: Annotated[str, Query(description="an export format: json, npz, ... (GET /api/export-formats lists them)")] = "json",
+    source: Annotated[Source, Query(description="3D source for keypoint formats (as `cornerman export --source`)")] = "best",
+    athlete: Annotated[list[int] | None, Query(description="person ids, repeated; default every athlete")] = None,
+    frames: Annotated[str | None, Query(description="video frames FIRST:STOP, STOP excluded")] = None,
+) -> Response:
+    """The session's results in one export format (a ZIP when the format writes several files),
+    exactly as ``cornerman export --format`` writes them."""
+    from pipeline.io.export import ExportSelection, export_files, get_format, parse_frames
+    from pipeline.io.export.write import bundle
+
+    bout = get_bout_or_404(db, session_id)
+    names = {i.person_id: i.name for i in crud.list_identities(db, bout_id=session_id)}
+    try:
+        fmt = get_format(format)
+        sel = ExportSelection(bout_dir(bout), source, tuple(athlete or ()), parse_frames(frames), names)
+        files = export_files(sel, fmt.name)
+    except LookupError as e:
+        raise HTTPException(status_code=status.HTTP_404_NOT_FOUND, detail=str(e)) from e
+    except ValueError as e:
+        raise HTTPException(status_code=status.HTTP_422_UNPROCESSABLE_ENTITY, detail=str(e)) from e
+    if len(files) == 1:
+        fname, media = next(iter(files)), fmt.media_type
+    else:
+        fname, media = f"session{session_id}_{fmt.name}.zip", "application/zip"
+    return Response(content=bundle(files), media_type=media,
+                    headers={"Content-Disposition": f'attachment; filename="{fname}"'})
 
 
 @router.get("/results/{stage}/{artifact}")

@@ -20,6 +20,14 @@ def health() -> dict[str, Any]:
     return {"status": "ok", "version": __version__}
 
 
+@router.get("/export-formats", tags=["results"])
+def export_formats() -> list[dict[str, str]]:
+    """The export formats ``GET /sessions/{id}/export?format=`` accepts, with suffix and summary."""
+    from pipeline.io.export import FORMATS
+
+    return [{"name": f.name, "suffix": f.suffix, "media_type": f.media_type, "summary": f.summary} for f in FORMATS.values()]
+
+
 @router.get("/me", response_model=UserPublic)
 def me(user: CurrentUser) -> Any:
     return user

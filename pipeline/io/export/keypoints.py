@@ -25,13 +25,16 @@ from __future__ import annotations
 import io
 import json
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 from pipeline.schema.base import to_arrays
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.sources import RESULT_ARTIFACTS
+
+if TYPE_CHECKING:
+    from pipeline.io.export.selection import ExportSelection
 
 ExportFormat = Literal["json", "npz"]
 JSON_FORMAT_ID = "cornerman.keypoints3d/v1"
@@ -115,3 +118,19 @@ def write_export(kp: Keypoints3D, fmt: ExportFormat, path: Path, names: dict[int
     tmp.write_bytes(data)
     tmp.replace(path)
     return path
+
+
+def _stem(sel: ExportSelection, chosen: str) -> str:
+    return f"keypoints3d_{chosen}"
+
+
+def build_json(sel: ExportSelection) -> dict[str, bytes]:
+    """The registry's ``json`` format: the selected keypoints as the README's JSON."""
+    kp, chosen = sel.keypoints()
+    return {f"{_stem(sel, chosen)}.json": export_keypoints3d(kp, "json", dict(sel.names))}
+
+
+def build_npz(sel: ExportSelection) -> dict[str, bytes]:
+    """The registry's ``npz`` format: the selected ``Keypoints3D`` fields as arrays."""
+    kp, chosen = sel.keypoints()
+    return {f"{_stem(sel, chosen)}.npz": export_keypoints3d(kp, "npz", dict(sel.names))}

@@ -1,0 +1,70 @@
+"""The export formats: one table the CLI, the REST API and the viewer all read."""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from pipeline.io.export.selection import ExportSelection
+
+Files = dict[str, bytes]
+"""File name (no folders) -> contents; several files are written as one ZIP."""
+
+
+@dataclass(frozen=True)
+class ExportFormat:
+    """One export format.
+
+    Fields:
+        name: the ``--format`` value.
+        suffix: file suffix of one written file (without the dot).
+        media_type: HTTP content type of one file.
+        summary: one line for ``--help`` and the API docs.
+        builder: ``"module:function"`` taking an ``ExportSelection`` and returning ``Files``
+            (imported on first use, so a format's library loads only when it is asked for).
+    """
+
+    name: str
+    suffix: str
+    media_type: str
+    summary: str
+    builder: str
+
+    def build(self, sel: ExportSelection) -> Files:
+        """The files of this format for ``sel``; ``LookupError`` when its stage has not run,
+        ``ValueError`` for a selection it cannot write."""
+        module, func = self.builder.split(":")
+        fn: Callable[[ExportSelection], Files] = getattr(importlib.import_module(module), func)
+        return fn(sel)
+
+
+FORMATS: dict[str, ExportFormat] = {
+    f.name: f
+    for f in (
+        ExportFormat("json", "json", "application/json",
+                     "3D keypoints as the README's JSON (metres, world z-up)",
+                     "pipeline.io.export.keypoints:build_json"),
+        ExportFormat("npz", "npz", "application/octet-stream",
+                     "3D keypoints as NumPy arrays (the Keypoints3D fields)",
+                     "pipeline.io.export.keypoints:build_npz"),
+    )
+}
+
+
+def format_names() -> list[str]:
+    """Every ``--format`` value, in table order."""
+    return list(FORMATS)
+
+
+def get_format(name: str) -> ExportFormat:
+    """The format called ``name``; ``ValueError`` listing the choices otherwise."""
+    try:
+        return FORMATS[name]
+    except KeyError:
+        raise ValueError(f"unknown export format {name!r}; choose one of {', '.join(FORMATS)}") from None
+
+
+def export_files(sel: ExportSelection, fmt: str) -> Files:
+    """The files of format ``fmt`` for ``sel`` (see ``ExportFormat.build``)."""
+    return get_format(fmt).build(sel)
