@@ -48,6 +48,12 @@ FORMATS: dict[str, ExportFormat] = {
         ExportFormat("npz", "npz", "application/octet-stream",
                      "3D keypoints as NumPy arrays (the Keypoints3D fields)",
                      "pipeline.io.export.keypoints:build_npz"),
+        ExportFormat("csv", "csv", "text/csv",
+                     "3D keypoints as a long table: one row per frame, athlete and joint (metres, world z-up)",
+                     "pipeline.io.export.tables:build_csv"),
+        ExportFormat("trc", "trc", "text/plain",
+                     "3D keypoints as OpenSim/Pose2Sim TRC markers (metres, y-up)",
+                     "pipeline.io.export.trc:build_trc"),
     )
 }
 
