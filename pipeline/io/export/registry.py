@@ -54,6 +54,12 @@ FORMATS: dict[str, ExportFormat] = {
         ExportFormat("trc", "trc", "text/plain",
                      "3D keypoints as OpenSim/Pose2Sim TRC markers (metres, y-up)",
                      "pipeline.io.export.trc:build_trc"),
+        ExportFormat("c3d", "c3d", "application/octet-stream",
+                     "3D keypoints as C3D labelled points (millimetres, world z-up; empty analog block)",
+                     "pipeline.io.export.c3d_export:build_c3d"),
+        ExportFormat("mujoco", "zip", "application/zip",
+                     "physics: scene.xml + qpos/qvel/ctrl per frame (motion.npz) + replay.py, as a ZIP",
+                     "pipeline.io.export.mjcf:build_mujoco"),
     )
 }
 
