@@ -56,6 +56,11 @@ def write_export_session(root: Path, n_frames: int = 8, physics: bool = True) ->
     session = write_tiny_session(
         root, stages=("detect2d", "track", "associate", "triangulate", "fit", "physics")
     )
+    return write_export_artifacts(session, n_frames, physics)
+
+
+def write_export_artifacts(session: Path, n_frames: int = 8, physics: bool = True) -> Path:
+    """Write the fit (and physics) artifacts of ``write_export_session`` into ``session``."""
     kp = standing_pair(n_frames)
     valid, xyz = kp.valid.copy(), kp.xyz_m.copy()
     for f, p, j in INVALID:
@@ -69,7 +74,6 @@ def write_export_session(root: Path, n_frames: int = 8, physics: bool = True) ->
         solver = {"window": 5, "commit": 3, "ilqr": {"max_iter": 2, "n_alpha": 3}}
         cfg = PhysicsConfig(solver=solver)  # type: ignore[arg-type]  # the config takes nested dicts
         out = run(PhysicsInputs(kp), cfg)
-        store.write(
-            _manifest("physics"), {"result": out.result, "keypoints3d": out.keypoints, "scene.xml": out.mjcf}
-        )
+        outputs = {"result": out.result, "keypoints3d": out.keypoints, "scene.xml": out.mjcf}
+        store.write(_manifest("physics"), outputs)
     return session
