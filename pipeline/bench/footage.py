@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.bench.effort import EFFORT_COLUMNS, session_effort_columns
 from pipeline.evaluate.consistency import MIN_KEYPOINT_CONF, consistency
 from pipeline.schema.session import SessionConfig
 from pipeline.schema.sources import RESULT_ARTIFACTS
@@ -273,6 +274,7 @@ def run_bench(
         row.update(consistency(kp, tracks, assoc, rig, min_keypoint_conf).to_dict())
         if name == "physics":
             row.update(_physics_columns(store))
+            row.update(session_effort_columns(store))
         rows.append(row)
     rows.append({**_session_row(store, reports, folder), "min_keypoint_conf": float(min_keypoint_conf)})
     rows += target_rows(rows)
@@ -302,6 +304,7 @@ PLAUSIBILITY_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("residual_force_mean_n", "resid F mean N", "{:.0f}"),
     ("residual_force_max_n", "resid F max N", "{:.0f}"),
     ("residual_windows", "resid windows", "{}"),
+    *EFFORT_COLUMNS,
 )
 
 

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.bench.effort import EFFORT_COLUMNS, session_effort_columns
 from pipeline.evaluate.shelf import ShelfScore, load_ground_truth, score_shelf
 from pipeline.schema.sources import RESULT_ARTIFACTS
 
@@ -234,6 +235,7 @@ def run_bench(
         if stage == "physics":
             metrics = next(r.metrics for r in reports if r.stage == stage)
             row.update({k: float(metrics[k]) for k in PHYSICS_METRICS if k in metrics})
+            row.update(session_effort_columns(store))
         rows.append(row)
     _targets(rows)
     return [timing, *rows, *(dict(r) for r in REFERENCES)]
@@ -270,6 +272,7 @@ COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("pipeline_s", "total s", "{:.1f}"),
     ("residual_force_mean_frac_bw", "resid F mean bw", "{:.3f}"),
     ("residual_force_max_frac_bw", "resid F max bw", "{:.3f}"),
+    *EFFORT_COLUMNS,
     ("target", "target", "{}"),
     ("target_met", "met", "{}"),
 )

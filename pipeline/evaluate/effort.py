@@ -1,0 +1,123 @@
+"""How hard the physics humanoids work: joint torques against human limits, ground
+reaction force against body weight, and the residual root force split into its parts.
+
+The limits are peak voluntary joint torques of trained adults, per kg of body mass
+(rationale and sources in ``docs/design/physics_effort.md``). A joint's torque is the
+norm over its hinge actuators (a ball joint is three hinges), compared with its group's
+limit; twist hinges (forearm pronation, tibial rotation) have their own small limits.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+GRAVITY = 9.81
+
+HUMAN_PEAK_TORQUE_NM_PER_KG: dict[str, float] = {
+    "spine": 3.5,
+    "neck": 0.8,
+    "shoulder": 1.6,
+    "elbow": 1.1,
+    "forearm_twist": 0.15,
+    "wrist": 0.3,
+    "hip": 3.8,
+    "knee": 3.4,
+    "shin_twist": 0.45,
+    "ankle": 2.6,
+}
+"""Peak voluntary torque per joint group, N·m per kg of body mass (valid > 0)."""
+
+_GROUP_OF_JOINT: tuple[tuple[str, str], ...] = (
+    (r"(spine|chest)", "spine"),
+    (r"(neck|head)", "neck"),
+    (r"(clavicle|shoulder)", "shoulder"),
+    (r"elbow_twist", "forearm_twist"),
+    (r"elbow", "elbow"),
+    (r"wrist", "wrist"),
+    (r"hip", "hip"),
+    (r"knee_twist", "shin_twist"),
+    (r"knee", "knee"),
+    (r"ankle", "ankle"),
+)
+
+
+def joint_of_actuator(name: str) -> str:
+    """The joint an actuator drives, without person prefix or axis suffix
+    (``p0_left_hip_x`` -> ``left_hip``; ``p1_left_elbow_twist`` -> ``left_elbow_twist``)."""
+    base = re.sub(r"^p\d+_", "", name)
+    return re.sub(r"_(x|y|z|flex|dev)$", "", base)
+
+
+def group_of_joint(joint: str) -> str:
+    """The limit group of a joint name (``left_hip`` -> ``hip``); ``ValueError`` for an unknown joint."""
+    for pattern, group in _GROUP_OF_JOINT:
+        if re.search(pattern, joint):
+            return group
+    raise ValueError(
+        f"joint {joint!r} has no torque-limit group; known groups: {sorted(HUMAN_PEAK_TORQUE_NM_PER_KG)}"
+    )
+
+
+def torque_limit_report(
+    torque_nm: np.ndarray, actuator_names: list[str], person_ids: list[int], mass_kg: np.ndarray
+) -> dict[str, float]:
+    """Share of (frame, athlete) samples whose joint torque exceeds the human limit, in %.
+
+    ``torque_nm``: (frames, actuators) applied actuator forces; ``actuator_names`` their
+    MuJoCo names (``p{pid}_…``; residual ``_res_`` actuators are ignored); ``mass_kg``:
+    (persons,) body masses. Returns ``torque_over_pct_<group>`` per group, ``torque_over_pct_any``
+    (frames where any joint of an athlete is over) and ``torque_peak_ratio_max`` (largest
+    torque / limit).
+    """
+    if torque_nm.ndim != 2 or torque_nm.shape[1] != len(actuator_names):
+        raise ValueError(f"torques {torque_nm.shape} do not match {len(actuator_names)} actuator names")
+    if len(mass_kg) != len(person_ids) or np.any(np.asarray(mass_kg) <= 0):
+        raise ValueError(f"need one positive mass per athlete, got {list(mass_kg)} for {person_ids}")
+    F = torque_nm.shape[0]
+    over_any = np.zeros((F, len(person_ids)), dtype=bool)
+    over_group: dict[str, list[np.ndarray]] = {g: [] for g in HUMAN_PEAK_TORQUE_NM_PER_KG}
+    peak = 0.0
+    for i, pid in enumerate(person_ids):
+        joints: dict[str, list[int]] = {}
+        for a, name in enumerate(actuator_names):
+            if name.startswith(f"p{pid}_") and "_res_" not in name:
+                joints.setdefault(joint_of_actuator(name), []).append(a)
+        for joint, acts in joints.items():
+            group = group_of_joint(joint)
+            limit = HUMAN_PEAK_TORQUE_NM_PER_KG[group] * float(mass_kg[i])
+            mag = np.linalg.norm(torque_nm[:, acts], axis=1)
+            over = mag > limit
+            over_group[group].append(over)
+            over_any[:, i] |= over
+            peak = max(peak, float(mag.max(initial=0.0)) / limit)
+    out = {
+        f"torque_over_pct_{g}": 100.0 * float(np.mean(np.concatenate(v))) for g, v in over_group.items() if v
+    }
+    out["torque_over_pct_any"] = 100.0 * float(over_any.mean()) if over_any.size else 0.0
+    out["torque_peak_ratio_max"] = peak
+    return out
+
+
+def force_balance_report(
+    grf_n: np.ndarray, residual_wrench: np.ndarray, mass_kg: np.ndarray
+) -> dict[str, float]:
+    """Who carries the athletes: the floor or the residual, in body weights (BW).
+
+    ``grf_n``: (frames, persons, 3) floor force on each athlete (N, world z-up);
+    ``residual_wrench``: (frames, persons, 6) residual root force (N) and torque;
+    ``mass_kg``: (persons,). A humanoid standing on its own has ``grf_z_mean_frac_bw`` near
+    1 over a bout and residual near 0.
+    """
+    bw = np.asarray(mass_kg, dtype=float)[None, :] * GRAVITY
+    res = residual_wrench[..., :3]
+    return {
+        "grf_z_mean_frac_bw": float(np.mean(grf_n[..., 2] / bw)),
+        "grf_z_max_frac_bw": float(np.max(grf_n[..., 2] / bw, initial=0.0)),
+        "grf_airborne_pct": 100.0 * float(np.mean(grf_n[..., 2] < 0.05 * bw)),
+        "residual_z_mean_frac_bw": float(np.mean(res[..., 2] / bw)),
+        "residual_xy_mean_frac_bw": float(np.mean(np.linalg.norm(res[..., :2], axis=-1) / bw)),
+        "residual_mean_frac_bw": float(np.mean(np.linalg.norm(res, axis=-1) / bw)),
+        "residual_max_frac_bw": float(np.max(np.linalg.norm(res, axis=-1) / bw, initial=0.0)),
+    }
