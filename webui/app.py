@@ -35,6 +35,7 @@ from webui.jobs import JobWatcher, job_fraction, job_summary
 from webui.panels.annotate import NO_TRACK, AnnotateHandles, make_annotate, parse_track_label, track_label
 from webui.panels.display import label_to_source, make_display, source_options
 from webui.panels.events import follow_frame, make_event_rows, make_events, set_events, wire_events
+from webui.panels.export import make_export, wire_export
 from webui.panels.plots import make_plots, update_plots
 from webui.panels.timeline import make_timeline, set_problems
 from webui.panels.views import make_views
@@ -108,6 +109,8 @@ class ViewerApp:
             self.events = make_events(server, [n for _, n in everyone], event_rows)
         with tabs.add_tab("Display"):
             self.display = make_display(server, list(self.data.keypoints))
+        with tabs.add_tab("Export"):
+            self.export = make_export(server)
         self.opts = DisplayOptions(source=label_to_source(self.display.source.value))
         self.persons = PersonsScene(server, self.data, self.palette)
         self._attach_heavy()
@@ -315,6 +318,8 @@ class ViewerApp:
             tl.frame.value = f  # type: ignore[misc]
 
         wire_events(self.events, self.events_view, lambda: self.frame, set_frame, lambda: self.data.n_frames)
+        wire_export(self.export, self.server, self.session_dir,
+                    lambda: {p: self.palette.name(p) for p in self.data.person_ids}, lambda: self.opts.source)
 
         @tl.next_problem.on_click
         def _(_: Any) -> None:
