@@ -14,6 +14,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from pipeline.cli.dataset import app as dataset_app
 from pipeline.io.export.write import check_out as _check_out
 
 app = typer.Typer(
@@ -517,6 +518,7 @@ def worker(
 
 priors_app = typer.Typer(help="Pose priors shipped with cornerman.", no_args_is_help=True)
 app.add_typer(priors_app, name="priors")
+app.add_typer(dataset_app, name="dataset")
 
 
 @priors_app.command("build")
