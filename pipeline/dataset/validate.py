@@ -190,7 +190,14 @@ class _Checker:
         return (arrays, sizes) if ok else None
 
     # -- sessions ------------------------------------------------------------------------------
+    def valid_json(self, rel: str, kind: str) -> Any:
+        """The document when it is readable and matches its schema, else ``None`` (problems recorded)."""
+        before = len(self.problems)
+        doc = self.json(rel, kind)
+        return doc if len(self.problems) == before else None
+
     def session(self, entry: dict[str, Any], files: list[str]) -> None:
+        """Check one session listed in a schema-valid ``release.json``."""
         sid = entry["id"]
         base = f"{SESSIONS_DIR}/{sid}"
         if entry["path"] != base:
@@ -198,17 +205,19 @@ class _Checker:
         if not (self.root / base).is_dir():
             self.bad(base, "listed in release.json but missing")
             return
-        meta = self.json(f"{base}/meta.json", "meta") if (self.root / base / "meta.json").is_file() else None
-        if not isinstance(meta, dict) or not all(
-            k in meta for k in ("files", "cameras", "n_frames", "athletes", "fps")
-        ):
-            if meta is None:
-                self.bad(f"{base}/meta.json", "missing")
+        present = {rel[len(base) + 1 :] for rel in files if rel.startswith(base + "/")} - {"meta.json"}
+        if not (self.root / base / "meta.json").is_file():
+            self.bad(f"{base}/meta.json", "missing")
+            meta = None
+        else:
+            meta = self.valid_json(f"{base}/meta.json", "meta")
+        if meta is None:  # each file on its own: cross-references need a valid meta.json
+            self.standalone(base, sorted(present))
             return
-        athletes = [a.get("name") for a in meta["athletes"] if isinstance(a, dict)]
+        athletes = [a["name"] for a in meta["athletes"]]
         for key, got, want in (
-            ("id", meta.get("id"), sid),
-            ("name", meta.get("name"), entry["name"]),
+            ("id", meta["id"], sid),
+            ("name", meta["name"], entry["name"]),
             ("n_frames", meta["n_frames"], entry["n_frames"]),
             ("athletes", athletes, entry["athletes"]),
             ("number of cameras", len(meta["cameras"]), entry["n_cameras"]),
@@ -216,7 +225,6 @@ class _Checker:
             if got != want:
                 self.bad(f"{base}/meta.json", f"{key} {got!r} disagrees with release.json's {want!r}")
         listed = {f["path"]: f for f in meta["files"]}
-        present = {rel[len(base) + 1 :] for rel in files if rel.startswith(base + "/")} - {"meta.json"}
         for p in sorted(set(listed) - present):
             self.bad(f"{base}/{p}", "listed in meta.json but missing")
         for p in sorted(present - set(listed)):
@@ -236,33 +244,44 @@ class _Checker:
                 f"tracks2d files for cameras {sorted(map(str, cams))}, cameras are {meta['cameras']}",
             )
 
-    def session_file(self, base: str, p: str, entry: dict[str, Any], meta: dict[str, Any]) -> None:
+    def standalone(self, base: str, paths: list[str]) -> None:
+        """Check the files of a session folder by their own schema or layout only."""
+        for p in paths:
+            kind = file_kind(f"{base}/{p}")
+            if kind == "meta":
+                self.json(f"{base}/{p}", "meta")
+            elif kind is not None:
+                self.session_file(base, p, {"kind": kind}, None)
+
+    def session_file(self, base: str, p: str, entry: dict[str, Any], meta: dict[str, Any] | None) -> None:
+        """Check one session file; with ``meta`` (a schema-valid ``meta.json``), its cross-references too."""
         rel, kind = f"{base}/{p}", entry["kind"]
-        n_frames = int(meta["n_frames"])
-        ids = {int(a["id"]) for a in meta["athletes"]}
         if kind in ("calibration", "events", "annotations", "videos"):
-            doc = self.json(rel, kind)
-            if kind == "calibration" and isinstance(doc, dict) and isinstance(doc.get("cameras"), list):
-                names = [c.get("name") for c in doc["cameras"] if isinstance(c, dict)]
-                if names != meta["cameras"]:
-                    self.bad(rel, f"cameras {names} differ from meta.json's {meta['cameras']}")
-            if kind == "events" and isinstance(doc, dict):
-                rows = [*doc.get("punches", []), *doc.get("evades", []), *doc.get("clinches", [])]
-                late = [
-                    r.get("end_frame")
-                    for r in rows
-                    if isinstance(r, dict) and not 0 <= r.get("end_frame", 0) < n_frames
-                ]
+            doc = self.valid_json(rel, kind)
+            if doc is None or meta is None:
+                return
+            if kind == "calibration" and [c["name"] for c in doc["cameras"]] != meta["cameras"]:
+                self.bad(
+                    rel,
+                    f"cameras {[c['name'] for c in doc['cameras']]} differ from meta.json's {meta['cameras']}",
+                )
+            if kind == "events":
+                rows = [*doc["punches"], *doc["evades"], *doc["clinches"]]
+                late = [r["end_frame"] for r in rows if r["end_frame"] >= meta["n_frames"]]
                 if late:
-                    self.bad(rel, f"events end at frames {late[:5]} outside the session's {n_frames} frames")
+                    self.bad(
+                        rel,
+                        f"events end at frames {late[:5]} outside the session's {meta['n_frames']} frames",
+                    )
         elif kind == "calibration_toml":
             self.toml(rel, meta)
         elif kind in NPZ_KINDS:
             got = self.npz(rel, kind)
-            if got is not None:
-                self.npz_refs(rel, kind, entry, got[0], got[1], n_frames, ids)
+            if got is not None and meta is not None:
+                ids = {int(a["id"]) for a in meta["athletes"]}
+                self.npz_refs(rel, kind, entry, got[0], got[1], int(meta["n_frames"]), ids)
 
-    def toml(self, rel: str, meta: dict[str, Any]) -> None:
+    def toml(self, rel: str, meta: dict[str, Any] | None) -> None:
         from pipeline.io.calibration_toml import load_toml
 
         try:
@@ -270,7 +289,7 @@ class _Checker:
         except (ValueError, OSError) as e:
             self.bad(rel, f"not a readable calibration: {e}")
             return
-        if list(rig.names) != meta["cameras"]:
+        if meta is not None and list(rig.names) != meta["cameras"]:
             self.bad(rel, f"cameras {list(rig.names)} differ from meta.json's {meta['cameras']}")
 
     def npz_refs(self, rel: str, kind: str, entry: dict[str, Any], arrays: dict[str, np.ndarray],
@@ -323,31 +342,37 @@ def validate_release(root: Path) -> ValidationReport:
     if not (root / RELEASE_JSON).is_file():
         c.bad(RELEASE_JSON, "missing: not a cornerman dataset release")
         return ValidationReport(root, tuple(c.problems), len(files), kinds, ())
-    release = c.json(RELEASE_JSON, "release")
-    if isinstance(release, dict) and release.get("format") != FORMAT_ID:
-        c.bad(RELEASE_JSON, f"format {release.get('format')!r}: this cornerman reads {FORMAT_ID}")
+    release = c.valid_json(RELEASE_JSON, "release")
+    raw = _load_json(root / RELEASE_JSON)
+    if isinstance(raw, dict) and raw.get("format") != FORMAT_ID:
+        c.bad(RELEASE_JSON, f"format {raw.get('format')!r}: this cornerman reads {FORMAT_ID}")
         return ValidationReport(root, tuple(c.problems), len(files), kinds, ())
     for kind, schema in c.schemas.items():
-        c_path = f"schemas/{kind}.schema.json"
-        _same_json(c, c_path, schema)
+        _same_json(c, f"schemas/{kind}.schema.json", schema)
     _same_json(c, NPZ_LAYOUTS_JSON, npz_layouts_doc())
     if not (root / DATASHEET).is_file():
         c.bad(DATASHEET, "missing")
-    entries = release.get("sessions", []) if isinstance(release, dict) else []
-    entries = [
-        e
-        for e in entries
-        if isinstance(e, dict) and {"id", "path", "name", "n_frames", "n_cameras", "athletes"} <= set(e)
-    ]
+    on_disk = sorted(
+        {rel.split("/")[1] for rel in files if rel.startswith(f"{SESSIONS_DIR}/") and rel.count("/") >= 2}
+    )
+    if release is None:  # without a valid session list, check each session folder's files on their own
+        for sid in on_disk:
+            base = f"{SESSIONS_DIR}/{sid}"
+            c.standalone(base, [rel[len(base) + 1 :] for rel in files if rel.startswith(base + "/")])
+        return ValidationReport(root, tuple(c.problems), len(files), kinds, ())
+    entries = release["sessions"]
     for e in entries:
         c.session(e, files)
-    listed = {e["id"] for e in entries}
-    on_disk = {
-        rel.split("/")[1] for rel in files if rel.startswith(f"{SESSIONS_DIR}/") and rel.count("/") >= 2
-    }
-    for sid in sorted(on_disk - listed):
+    for sid in sorted(set(on_disk) - {e["id"] for e in entries}):
         c.bad(f"{SESSIONS_DIR}/{sid}", "session folder not listed in release.json")
     return ValidationReport(root, tuple(c.problems), len(files), kinds, tuple(e["id"] for e in entries))
+
+
+def _load_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
 
 
 def _same_json(c: _Checker, rel: str, want: Any) -> None:

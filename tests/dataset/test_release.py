@@ -175,6 +175,33 @@ def test_a_schema_violation_names_the_field(release: Path, tmp_path: Path) -> No
     assert r.exit_code == 2 and "field cameras/1/K/0" in r.output
 
 
+def test_malformed_documents_are_reported_not_raised(release: Path, tmp_path: Path) -> None:
+    rel = _copy(release, tmp_path)
+    d = rel / "sessions" / "tiny"
+    for path, edit in (
+        (d / "meta.json", lambda doc: doc.update(files=[1, 2])),
+        (d / "events.json", lambda doc: doc.update(clinches=[{"start_frame": 0, "end_frame": "late"}])),
+        (rel / "release.json", lambda doc: doc["sessions"][0].update(n_frames="12")),
+    ):
+        doc = json.loads(path.read_text())
+        edit(doc)
+        path.write_text(json.dumps(doc))
+    write_checksums(rel)
+    assert set(validate_release(rel).problems) == {
+        Problem("release.json", "field sessions/0/n_frames: '12' is not of type 'integer'"),
+        Problem("sessions/tiny/meta.json", "field files/0: 1 is not of type 'object'"),
+        Problem("sessions/tiny/meta.json", "field files/1: 2 is not of type 'object'"),
+        Problem("sessions/tiny/events.json", "field clinches/0/end_frame: 'late' is not of type 'integer'"),
+        Problem("sessions/tiny/events.json", "field clinches/0: 'start_s' is a required property"),
+        Problem("sessions/tiny/events.json", "field clinches/0: 'end_s' is a required property"),
+    }
+    (rel / "release.json").write_text(json.dumps({"format": "cornerman.dataset/v9"}))
+    write_checksums(rel)
+    assert validate_release(rel).problems[-1] == Problem(
+        "release.json", "format 'cornerman.dataset/v9': this cornerman reads cornerman.dataset/v1"
+    )
+
+
 def test_layout_and_cross_reference_errors(release: Path, tmp_path: Path) -> None:
     rel = _copy(release, tmp_path)
     d = rel / "sessions" / "tiny"
