@@ -10,7 +10,10 @@
   between the first and the last exported one are written as invalid samples.
 - Residuals: ``-1`` for a joint without an estimate (its coordinates are NaN for ezc3d and 0 on
   disk), ``0`` for a valid one (no per-point residual in millimetres is known).
-- Analog: an empty block (no channels, rate 0); the physics' ground reactions are not written yet.
+- Analog: with ``--source physics`` (or ``latest`` when physics ran), the floor's force on each
+  athlete from the physics humanoids (``pipeline.backends.mujoco.forces``): three channels per
+  athlete ``Red_GRF_x/y/z``, newtons, world z-up, one sample per point frame (``ANALOG:RATE`` =
+  ``POINT:RATE``). Otherwise an empty block (no channels, rate 0).
 """
 
 from __future__ import annotations
@@ -28,8 +31,9 @@ if TYPE_CHECKING:
     from pipeline.io.export.selection import ExportSelection
 
 
-def keypoints3d_to_c3d(kp: Keypoints3D, names: dict[int, str]) -> bytes:
-    """The C3D file of ``kp`` (see the module docstring); ``names`` maps person id -> athlete name."""
+def keypoints3d_to_c3d(kp: Keypoints3D, names: dict[int, str], grf_n: np.ndarray | None = None) -> bytes:
+    """The C3D file of ``kp`` (see the module docstring); ``names`` maps person id -> athlete name;
+    ``grf_n``: optional (frames, persons, 3) floor force per keypoint row (N), written as analogs."""
     import ezc3d
 
     if kp.n_frames == 0:
@@ -55,6 +59,20 @@ def keypoints3d_to_c3d(kp: Keypoints3D, names: dict[int, str]) -> bytes:
     c["header"]["points"]["first_frame"] = first
     c["data"]["points"] = pts
     c["data"]["meta_points"] = {"residuals": res, "camera_masks": np.zeros((7, len(labels), n), dtype=bool)}
+    if grf_n is not None:
+        if grf_n.shape != (kp.n_frames, kp.n_persons, 3):
+            raise ValueError(
+                f"C3D export: ground forces {grf_n.shape} do not match the keypoints {(kp.n_frames, kp.n_persons, 3)}"
+            )
+        chan = [f"{names.get(int(p)) or f'person{int(p)}'}_GRF_{ax}" for p in kp.person_ids for ax in "xyz"]
+        analog = np.zeros((1, len(chan), n))
+        analog[0][:, rows] = grf_n.reshape(kp.n_frames, -1).T
+        a = c["parameters"]["ANALOG"]
+        a["RATE"]["value"] = [float(kp.fps)]
+        a["LABELS"]["value"] = chan
+        a["UNITS"]["value"] = ["N"] * len(chan)
+        a["DESCRIPTIONS"]["value"] = ["floor force on the athlete, physics, world z-up"] * len(chan)
+        c["data"]["analogs"] = analog
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "markers.c3d"
         c.write(str(path))
@@ -65,4 +83,16 @@ def build_c3d(sel: ExportSelection) -> dict[str, bytes]:
     """The registry's ``c3d`` format: the selected keypoints as one C3D (mm, world z-up)."""
     kp, chosen = sel.keypoints()
     names = {int(p): sel.name_of(int(p)) for p in kp.person_ids}
-    return {f"keypoints3d_{chosen}.c3d": keypoints3d_to_c3d(kp, names)}
+    grf = _ground_forces(sel, kp) if chosen == "physics" else None
+    return {f"keypoints3d_{chosen}.c3d": keypoints3d_to_c3d(kp, names, grf)}
+
+
+def _ground_forces(sel: ExportSelection, kp: Keypoints3D) -> np.ndarray:
+    """(frames, persons, 3) floor force on each athlete of ``kp`` (N), from the physics result."""
+    from pipeline.backends.mujoco.forces import ground_reaction_forces
+
+    res, xml = sel.physics()
+    grf = ground_reaction_forces(xml, res)
+    rows = np.searchsorted(res.frame_indices, kp.frame_indices)
+    cols = [[int(p) for p in res.person_ids].index(int(p)) for p in kp.person_ids]
+    return grf[rows][:, cols]

@@ -16,7 +16,7 @@ The ZIP holds:
 
 Axes and units are MuJoCo's and the world's: metres, z-up, right-handed. The rate is the
 session's frame rate. ``--frames`` restricts the frames; the scene always holds every athlete,
-so ``--athlete`` and ``--source`` do not apply.
+so ``--athlete`` is refused and ``--source`` does not apply.
 """
 
 from __future__ import annotations
@@ -55,7 +55,12 @@ np.savez(here / "replayed.npz", body_xpos=np.array(body_xpos), site_xpos=np.arra
 
 def build_mujoco(sel: ExportSelection) -> dict[str, bytes]:
     """The registry's ``mujoco`` format: ``scene.xml``, ``motion.npz`` and ``replay.py``;
-    ``LookupError`` when the physics stage has not run."""
+    ``LookupError`` when the physics stage has not run; ``ValueError`` for ``--athlete`` (the
+    scene simulates every athlete together, so one cannot be replayed alone)."""
+    if sel.athletes:
+        raise ValueError(
+            "--athlete: the mujoco export holds the whole scene (every athlete); leave --athlete out"
+        )
     try:
         res, xml = sel.physics()
     except (LookupError, FileNotFoundError) as e:

@@ -6,13 +6,12 @@ import io
 import warnings
 from pathlib import Path
 
+import ezc3d
 import numpy as np
 import pytest
 
 from pipeline.io.export import ExportSelection, export_files
 from tests.io.export.export_session import FIRST_FRAME, FPS, INVALID, write_export_session
-
-ezc3d = pytest.importorskip("ezc3d")
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +44,8 @@ def test_c3d_reads_back_with_ezc3d(exported: tuple[Path, ExportSelection]) -> No
 
 
 def test_c3d_reads_back_with_the_c3d_package(exported: tuple[Path, ExportSelection]) -> None:
-    c3d = pytest.importorskip("c3d")
+    import c3d
+
     path, sel = exported
     kp, _ = sel.keypoints()
     with warnings.catch_warnings():
@@ -74,3 +74,27 @@ def test_c3d_of_a_frame_range_and_one_athlete(exported: tuple[Path, ExportSelect
     assert c["parameters"]["POINT"]["LABELS"]["value"] == list(kp.joint_names)
     assert c["header"]["points"]["first_frame"] == FIRST_FRAME + 4 and c["data"]["points"].shape[2] == 3
     assert np.abs(c["data"]["points"][:3, :, 2].T / 1000.0 - kp.xyz_m[2, 0]).max() <= 1e-6
+
+
+def test_c3d_from_physics_carries_the_floor_forces_as_analogs(tmp_path: Path) -> None:
+    from pipeline.backends.mujoco.forces import ground_reaction_forces
+
+    sel = ExportSelection(
+        write_export_session(tmp_path / "s"),
+        source="physics",
+        names={0: "Red", 1: "Blue"},
+        frames=(FIRST_FRAME + 1, FIRST_FRAME + 6),
+    )
+    files = export_files(sel, "c3d")
+    path = tmp_path / "phys.c3d"
+    path.write_bytes(files["keypoints3d_physics.c3d"])
+    c = ezc3d.c3d(str(path))
+    analog = c["parameters"]["ANALOG"]
+    assert analog["LABELS"]["value"] == [f"{who}_GRF_{ax}" for who in ("Red", "Blue") for ax in "xyz"]
+    assert analog["UNITS"]["value"] == ["N"] * 6 and analog["RATE"]["value"][0] == FPS
+    res, xml = sel.physics()
+    expected = ground_reaction_forces(xml, res)  # (frames, persons, 3)
+    got = c["data"]["analogs"][0]  # (channels, frames)
+    assert got.shape == (6, res.qpos.shape[0])
+    np.testing.assert_allclose(got.T.reshape(-1, 2, 3), expected, atol=1e-3)
+    assert expected[..., 2].mean() > 100.0  # the standing athletes press on the floor

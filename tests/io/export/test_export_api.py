@@ -16,8 +16,6 @@ from pipeline.io.export import ExportSelection, export_files
 from tests.conftest import write_tiny_session
 from tests.io.export.export_session import FIRST_FRAME, write_export_artifacts
 
-pytest.importorskip("server.app")
-
 
 @pytest.fixture(scope="module")
 def api(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[object, dict[str, str], dict[str, str]]]:

@@ -82,6 +82,10 @@ def test_athlete_by_name_and_frames(session: Path, tmp_path: Path) -> None:
         app, ["export", str(session), "-f", "c3d", "-a", "Green", "-o", str(tmp_path / "g.c3d")]
     )
     assert r.exit_code == 2 and "no athlete of that name" in r.output and not (tmp_path / "g.c3d").exists()
+    r = runner.invoke(
+        app, ["export", str(session), "-f", "mujoco", "-a", "Red", "-o", str(tmp_path / "m.zip")]
+    )
+    assert r.exit_code == 2 and "whole scene" in r.output and not (tmp_path / "m.zip").exists()
 
 
 @pytest.mark.parametrize("fmt", ["csv", "trc", "c3d", "mujoco"])

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pygltflib
 import pytest
 
 from pipeline.artifacts import ArtifactStore
@@ -18,8 +19,6 @@ from pipeline.io.export.registry import export_files
 from pipeline.io.export.selection import ExportSelection
 from pipeline.schema.results import BodyFit
 from tests.conftest import write_tiny_session
-
-pygltflib = pytest.importorskip("pygltflib")
 
 N_FRAMES = 12
 INVALID_ROWS = (3, 4)  # person 1 not fitted there

@@ -10,6 +10,7 @@ import sys
 import zipfile
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -19,8 +20,6 @@ from pipeline.io.export.write import write_files
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import PhysicsResult
 from tests.io.export.export_session import FIRST_FRAME, FPS, write_export_session
-
-mujoco = pytest.importorskip("mujoco")
 
 
 @pytest.fixture(scope="module")

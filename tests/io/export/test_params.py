@@ -10,9 +10,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("torch")
-pytest.importorskip("anny")
-
 from pipeline.artifacts import ArtifactStore  # noqa: E402
 from pipeline.artifacts.store import Manifest  # noqa: E402
 from pipeline.io.export import ExportSelection, export_files  # noqa: E402
@@ -103,9 +100,8 @@ def _smpl_session(root: Path) -> tuple[Path, BodyFit, Path]:
 
 
 def test_smpl_params_follow_smplx_conventions(tmp_path: Path) -> None:
-    torch = pytest.importorskip("torch")
-    pytest.importorskip("smplx")
     import roma
+    import torch
 
     from pipeline.backends.smpl import body as sb
 
@@ -136,7 +132,6 @@ def test_smpl_params_follow_smplx_conventions(tmp_path: Path) -> None:
 
 
 def test_smpl_params_without_the_model_files_name_the_problem(tmp_path: Path) -> None:
-    pytest.importorskip("smplx")
     s, _, models = _smpl_session(tmp_path)
     for f in (models / "smpl").iterdir():
         f.unlink()
