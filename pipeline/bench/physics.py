@@ -22,6 +22,12 @@ consistent each row's motion is: the mean root force (body weights) and torque (
 it needs beyond its foot contacts, in the same fitted bodies. The synthetic ground
 truth is choreographed, not simulated, so it needs some itself; a simulation can
 follow a motion only as far as its residual supplies that.
+
+``scenes`` adds motion the defaults were not tuned on: ``"deepmimic:<clip>+<clip>"`` is
+two athletes doing DeepMimic mocap clips (``pipeline.synthetic.mocap_scene``; punch,
+kick, walk, run, spin, backflip...), seen by the same cameras with the same 2D noise,
+e.g. ``--opt scenes='["synthetic","deepmimic:punch+walk","deepmimic:kick+spin"]'``.
+Every row carries its scene; deltas and means over seeds are per scene.
 """
 
 from __future__ import annotations
@@ -75,13 +81,13 @@ DELTAS: tuple[tuple[str, str], ...] = (
 
 
 def with_deltas(rows: list[dict]) -> list[dict]:
-    """Add, to every physics row, its % change vs the kinematic row of the same seed
+    """Add, to every physics row, its % change vs the kinematic row of the same scene and seed
     (penetration max, foot skating, MPJPE: the quantities of the targets)."""
-    kin = {r.get("seed"): r for r in rows if str(r["method"]).startswith("kinematic")}
+    kin = {(r.get("scene"), r.get("seed")): r for r in rows if str(r["method"]).startswith("kinematic")}
     out = []
     for r in rows:
         r = dict(r)
-        k = kin.get(r.get("seed"))
+        k = kin.get((r.get("scene"), r.get("seed")))
         if k is not None and str(r["method"]).startswith("physics"):
             for key, name in DELTAS:
                 if key in r and key in k:
@@ -91,15 +97,17 @@ def with_deltas(rows: list[dict]) -> list[dict]:
 
 
 def mean_over_seeds(rows: list[dict]) -> list[dict]:
-    """One row per method with every numeric column averaged over the seeds."""
-    methods = list(dict.fromkeys(r["method"] for r in rows))
+    """One row per (scene, method) with every numeric column averaged over the seeds."""
+    methods = list(dict.fromkeys((r.get("scene"), r["method"]) for r in rows))
     out = []
-    for m in methods:
-        group = [r for r in rows if r["method"] == m]
+    for sc, m in methods:
+        group = [r for r in rows if r["method"] == m and r.get("scene") == sc]
         agg: dict[str, Any] = {"method": m, "seed": f"mean of {len(group)}"}
+        if sc is not None:
+            agg["scene"] = sc
         for key in group[0]:
             vals = [g.get(key) for g in group]
-            if key not in ("method", "seed") and all(isinstance(v, (int, float)) for v in vals):
+            if key not in ("method", "seed", "scene") and all(isinstance(v, (int, float)) for v in vals):
                 agg[key] = float(np.mean([float(v) for v in vals if v is not None]))
         out.append(agg)
     return out
@@ -112,19 +120,29 @@ def run_bench(
     kinematic: Literal["triangulation", "fit", "noisy_gt"] = "fit",
     modes: tuple[str, ...] = ("multi", "single"),
     seeds: tuple[int, ...] | None = None,
+    scenes: tuple[str, ...] = ("synthetic",),
     **physics_overrides: Any,
 ) -> list[dict]:
     """Rows: ground truth, kinematic input, then one per physics mode, for ``seed`` or
     for each of ``seeds`` (different bouts; then also their means: single-bout physics
-    numbers move by several mm between bouts)."""
+    numbers move by several mm between bouts), for each of ``scenes`` (``"synthetic"``
+    or ``"deepmimic:<clip>+<clip>"``, see ``pipeline.synthetic.mocap_scene``)."""
+    from pipeline.synthetic.mocap_scene import parse_scene
+
+    scenes = (scenes,) if isinstance(scenes, str) else tuple(scenes)  # ``--opt scenes=synthetic`` gives a string
+    if not scenes or not all(isinstance(sc, str) for sc in scenes):
+        raise ValueError(f"bench physics: scenes must be a non-empty list of scene names, e.g. [\"synthetic\"]; got {scenes!r}")
+    for sc in scenes:
+        parse_scene(sc)  # a bad name fails before any work
     if seeds is not None and (
         isinstance(seeds, (str, bytes)) or not seeds or not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds)
     ):
         raise ValueError(f"bench physics: seeds must be a non-empty list of integers, e.g. seeds=[0,1]; got {seeds!r}")
     modes = (modes,) if isinstance(modes, str) else tuple(modes)  # ``--opt modes=multi`` gives a string
     rows: list[dict] = []
-    for s in seeds if seeds else (seed,):
-        rows += _run_seed(s, n_frames, cameras, kinematic, modes, physics_overrides)
+    for sc in scenes:
+        for s in seeds if seeds else (seed,):
+            rows += [{"scene": sc, **r} for r in _run_seed(s, n_frames, cameras, kinematic, modes, physics_overrides, sc)]
     rows = with_deltas(rows)
     if seeds and len(seeds) > 1:
         rows += mean_over_seeds(rows)
@@ -132,12 +150,18 @@ def run_bench(
 
 
 def _run_seed(
-    seed: int, n_frames: int, cameras: int, kinematic: str, modes: tuple[str, ...], physics_overrides: dict[str, Any]
+    seed: int,
+    n_frames: int,
+    cameras: int,
+    kinematic: str,
+    modes: tuple[str, ...],
+    physics_overrides: dict[str, Any],
+    scene: str = "synthetic",
 ) -> list[dict]:
-    from pipeline.synthetic.bout import make_bout
     from pipeline.synthetic.config import SyntheticConfig
+    from pipeline.synthetic.mocap_scene import make_scene
 
-    bout = make_bout(SyntheticConfig(seed=seed, n_cameras=cameras, n_frames=n_frames))
+    bout = make_scene(scene, SyntheticConfig(seed=seed, n_cameras=cameras, n_frames=n_frames))
     gt = bout.gt
     kin, bodyfit = _kinematic_input(bout, kinematic, seed)
     pids = [int(p) for p in kin.person_ids]
@@ -192,6 +216,7 @@ def _run_seed(
 
 
 COLUMNS: tuple[tuple[str, str], ...] = (
+    ("scene", "scene"),
     ("method", "method"),
     ("seed", "seed"),
     ("inter_penetration_max_mm", "pen max mm"),
@@ -231,9 +256,9 @@ def print_table(rows: list[dict]) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    table = Table(title="physics: kinematic vs single/multi-person physics (synthetic bout)", caption=TARGETS)
+    table = Table(title="physics: kinematic vs single/multi-person physics (synthetic bouts, mocap scenes)", caption=TARGETS)
     for _, head in COLUMNS:
-        if head == "method":
+        if head in ("method", "scene"):
             table.add_column(head, justify="left", no_wrap=True)
         else:
             table.add_column(head, justify="right", overflow="fold")
