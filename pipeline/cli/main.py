@@ -351,6 +351,28 @@ def analyze(
         console.print(f"summary written to {json_out}")
 
 
+@app.command()
+def report(
+    session: Annotated[Path, typer.Argument(help="Session folder (the analyze stage must have run).")],
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="HTML file to write (default: SESSION/report.html).")] = None,
+    period_s: Annotated[float, typer.Option("--period-s", help="Summary period when session.json gives no rounds (s).")] = 60.0,
+    bin_s: Annotated[float, typer.Option("--bin-s", help="Work-rate timeline bin (s).")] = 10.0,
+) -> None:
+    """Write the bout report: one self-contained HTML page (summary per athlete and per round,
+    punch maps, ring-position heatmaps, speed histograms, work-rate timeline) to print or save as PDF."""
+    from pipeline.report import ReportOptions, load_report_data, render_report
+
+    path = out or session / "report.html"
+    try:
+        _check_out(path)
+        html = render_report(load_report_data(session), ReportOptions(period_s=period_s, bin_s=bin_s))
+    except (ValueError, LookupError) as e:
+        _fail(str(e))
+        return
+    path.write_text(html, encoding="utf-8")
+    console.print(f"wrote {path} ({len(html) // 1024} KiB); open it in a browser to print or save as PDF")
+
+
 def _export_calibration(session: Path, cfg: Any, path: Path) -> None:
     from pipeline.artifacts import ArtifactStore
     from pipeline.io.calibration import save_toml

@@ -1,0 +1,214 @@
+"""The bout report (pipeline.report) on a hand-made analysed bout: its numbers are the
+analyze summary's, its periods add up to the bout, its charts hold one mark per event,
+it is self-contained and printable; and ``cornerman report`` on a session the runner analysed."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from pipeline.report import ReportData, ReportOptions, load_report_data, render_report, slice_bout
+from pipeline.report.html import SUMMARY_ROWS
+from pipeline.schema.analytics import OUTCOMES, PUNCH_TYPES, BoutEvents
+from pipeline.stages.analyze import AnalyzeOutput, summarize
+from tests.report.fixtures import write_analysed_bout
+from tests.report.helpers import Element, number, parse, svgs
+
+
+@pytest.fixture(scope="module")
+def bout(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, AnalyzeOutput, ReportData]:
+    folder = tmp_path_factory.mktemp("report") / "bout"
+    out = write_analysed_bout(folder)
+    return folder, out, load_report_data(folder)
+
+
+def _charts(root: Element, kind: str) -> list[Element]:
+    return root.find_all("svg", data_chart=kind)
+
+
+def test_the_data_is_a_real_bout(bout: tuple[Path, AnalyzeOutput, ReportData]) -> None:
+    _, out, data = bout
+    ev = out.events
+    # The fixture must exercise every outcome and both athletes, or the checks below prove little.
+    assert set(ev.punch_outcome.tolist()) == set(OUTCOMES) and set(ev.punch_person.tolist()) == {0, 1}
+    assert data.names == {0: "Red", 1: "Blue"} and data.source == "fit" and data.title == "sparring test"
+    assert data.positions_valid is not None and data.positions_valid.all()
+
+
+def test_summary_tables_show_the_analyze_summary(bout: tuple[Path, AnalyzeOutput, ReportData]) -> None:
+    _, out, data = bout
+    root = parse(render_report(data))
+    summary = summarize(out.events, out.series, {0: "Red", 1: "Blue"})
+    table = root.find_all("table", **{"class": "summary"})[0]
+    for a in summary["athletes"]:
+        for key, _ in SUMMARY_ROWS:
+            cells = table.find_all("td", data_key=key, data_athlete=str(a["person_id"]), data_period="bout")
+            assert len(cells) == 1, key
+            got, want = number(cells[0].text), a.get(key)
+            assert got == (float(want) if isinstance(want, int | float) else want), (
+                a["name"],
+                key,
+                got,
+                want,
+            )
+        types = root.find_all("table", data_athlete=str(a["person_id"]), **{"class": "types"})[0]
+        for t in PUNCH_TYPES:
+            rows = types.find_all("tr", data_type=t)
+            assert len(rows) == (1 if a["types"][t] else 0), t
+            if rows:
+                n = {
+                    c.attrs["data-key"]: number(c.text)
+                    for c in rows[0].find_all("td")
+                    if "data-key" in c.attrs
+                }
+                assert n["thrown"] == a["types"][t] == sum(n[o] for o in OUTCOMES), (t, n)  # type: ignore[misc]
+    header = root.find_all("header")[0].text
+    assert (
+        "sparring test" in header
+        and "Red" in header
+        and "Blue" in header
+        and "12.0 s" in header
+        and "fit" in header
+    )
+
+
+def test_periods_add_up_to_the_bout(bout: tuple[Path, AnalyzeOutput, ReportData]) -> None:
+    _, out, data = bout
+    html = render_report(data, ReportOptions(period_s=4.0))
+    root = parse(html)
+    assert "split into 4 s periods" in html
+    for pid in (0, 1):
+        table = root.find_all("table", data_athlete=str(pid), **{"class": "periods"})[0]
+        for key in (
+            "punches",
+            "punches_landed",
+            "punches_blocked",
+            "punches_missed",
+            "slips",
+            "ducks",
+            "clinch_s",
+        ):
+            per = [number(table.find_all("td", data_key=key, data_period=str(k))[0].text) for k in range(3)]
+            whole = number(table.find_all("td", data_key=key, data_period="bout")[0].text)
+            assert sum(per) == pytest.approx(whole, abs=0.02), (pid, key, per, whole)  # type: ignore[arg-type]
+        assert not table.find_all("td", data_period="3")
+    # The punches of a span are those whose strike lies in it.
+    ev, fps = out.events, out.series.fps
+    for k in range(3):
+        sub, series = slice_bout(ev, out.series, 4.0 * k, 4.0 * (k + 1))
+        assert sub.n_punches == int(
+            np.sum((ev.punch_peak_frame >= 200 * k) & (ev.punch_peak_frame < 200 * (k + 1)))
+        )
+        assert series.n_frames == int(4.0 * fps)
+    with pytest.raises(ValueError, match="no analysed frame"):
+        slice_bout(ev, out.series, 20.0, 24.0)
+
+
+def test_charts_have_one_mark_per_event_and_labelled_axes(
+    bout: tuple[Path, AnalyzeOutput, ReportData],
+) -> None:
+    _, out, data = bout
+    ev, opts = out.events, ReportOptions()
+    html = render_report(data, opts)
+    root = parse(html)
+    assert len(svgs(html)) == 3 * 2 + 1  # every chart is well-formed XML
+    for kind in ("punch-map", "ring-heatmap", "speed-histogram"):
+        assert sorted(c.attrs["data-athlete"] for c in _charts(root, kind)) == ["0", "1"], kind
+    assert len(_charts(root, "work-rate")) == 1
+    for pid in (0, 1):
+        mine = ev.punch_person == pid
+        dots = _charts(root, "punch-map")[pid].find_all("circle", **{"class": "mark"})
+        assert len(dots) == int(np.sum(mine & (ev.punch_target != "none")))
+        for o in OUTCOMES:
+            assert sum(d.attrs["data-outcome"] == o for d in dots) == int(
+                np.sum(mine & (ev.punch_target != "none") & (ev.punch_outcome == o))
+            )
+        bars = _charts(root, "speed-histogram")[pid].find_all("rect", **{"class": "mark"})
+        for o in OUTCOMES:
+            assert sum(int(b.attrs["data-count"]) for b in bars if b.attrs["data-outcome"] == o) == int(
+                np.sum(mine & (ev.punch_outcome == o))
+            )
+        rate = [
+            b
+            for b in _charts(root, "work-rate")[0].find_all("rect", **{"class": "mark"})
+            if b.attrs["data-athlete"] == str(pid)
+        ]
+        assert len(rate) == math.ceil(data.duration_s / opts.bin_s) and sum(
+            int(b.attrs["data-count"]) for b in rate
+        ) == int(mine.sum())
+        cells = _charts(root, "ring-heatmap")[pid].find_all("rect", **{"class": "mark"})
+        assert data.positions_valid is not None
+        seconds = sum(float(c.attrs["data-seconds"]) for c in cells)
+        assert seconds == pytest.approx(data.positions_valid[:, pid].sum() / data.series.fps, rel=1e-6)
+        assert len(cells) > 4  # the athlete moved around
+    for kind, units in (("ring-heatmap", "(m)"), ("speed-histogram", "(m/s)"), ("work-rate", "(s)")):
+        for chart in _charts(root, kind):
+            labels = [t.text for t in chart.find_all("text") if t.attrs.get("class") in ("xlabel", "ylabel")]
+            assert len(labels) == 2 and units in labels[0], (kind, labels)
+    assert "ring unknown" in html and not root.find_all("polygon", **{"class": "ring"})
+
+
+def test_self_contained_and_printable(bout: tuple[Path, AnalyzeOutput, ReportData]) -> None:
+    html = render_report(bout[2])
+    assert html.startswith("<!doctype html>")
+    for outside in ("<script", "<link", " src=", "url(", "@import", "http://", "https://"):
+        assert outside not in html, outside
+    css = parse(html).find_all("style")[0].text
+    assert "@media print" in css and "size:A4" in css and "break-before:page" in css
+    sections = parse(html).find_all("section")
+    assert [s.attrs["id"] for s in sections] == [
+        "summary",
+        "rounds",
+        "punch-maps",
+        "ring",
+        "speeds",
+        "work-rate",
+    ]
+
+
+def test_given_rounds_and_ring_and_missing_parts(bout: tuple[Path, AnalyzeOutput, ReportData]) -> None:
+    data = bout[2]
+    ring = np.array([[-3.0, -3.0], [3.0, -3.0], [3.0, 3.0], [-3.0, 3.0]])
+    html = render_report(replace(data, ring_xy_m=ring, rounds_s=((0.0, 5.0), (6.0, 12.0))))
+    root = parse(html)
+    assert "Rounds from the session" in html and "round 2" in html and "ring unknown" not in html
+    assert len(root.find_all("polygon", **{"class": "ring"})) == 2
+    empty = BoutEvents.empty(data.series.fps, data.series.person_ids)
+    html = render_report(replace(data, events=empty, positions_xy_m=None, positions_valid=None))
+    assert html.count("threw no punch") == 2 * 2 and "no 3D positions" in html  # types + histograms
+    assert not parse(html).find_all("circle", **{"class": "mark"})
+    with pytest.raises(ValueError, match="period_s"):
+        ReportOptions(period_s=0.0)
+    with pytest.raises(ValueError, match="rounds_s"):
+        replace(data, rounds_s=((5.0, 2.0),))
+
+
+def test_cli_report_on_a_session_the_runner_analysed(tmp_path: Path) -> None:
+    from pipeline.cli.main import app
+    from pipeline.runner import run
+    from tests.conftest import write_tiny_session
+
+    s = write_tiny_session(
+        tmp_path / "s", stages=("detect2d", "track", "associate", "triangulate", "analyze"), n_frames=30
+    )
+    runner = CliRunner()
+    r = runner.invoke(app, ["report", str(s), "--out", str(tmp_path / "r.html")])
+    assert r.exit_code == 2 and "analyze stage has not run" in r.output and not (tmp_path / "r.html").exists()
+    run(s)
+    r = runner.invoke(app, ["report", str(s), "--out", str(tmp_path / "no" / "r.html")])
+    assert r.exit_code == 2 and "does not exist" in r.output
+    r = runner.invoke(app, ["report", str(s), "--out", str(tmp_path / "r.html"), "--bin-s", "0.2"])
+    assert r.exit_code == 0, r.output
+    html = (tmp_path / "r.html").read_text()
+    root = parse(html)
+    assert len(svgs(html)) == 7 and "tiny — bout report" in html
+    data = load_report_data(s)
+    assert data.source == "filtered" and data.positions_valid is not None and data.positions_valid.any()
+    rate = _charts(root, "work-rate")[0].find_all("rect", **{"class": "mark"})
+    assert len(rate) == 2 * math.ceil(data.duration_s / 0.2 - 1e-9)
+    assert sum(int(b.attrs["data-count"]) for b in rate) == data.events.n_punches
