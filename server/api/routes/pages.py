@@ -14,9 +14,11 @@ from fastapi.responses import HTMLResponse
 
 from server import crud
 from server.api.deps import TOKEN_COOKIE, CurrentUser, SessionDep, TokenDep
+from server.api.routes.report import router as report_router
 from server.models import Job
 
 router = APIRouter(tags=["pages"], include_in_schema=False)
+router.include_router(report_router)  # GET /sessions/{id}/report: the printable bout report
 
 CSS = """
 body{font-family:system-ui,sans-serif;margin:2rem;color:#222;background:#fafafa}
@@ -71,7 +73,7 @@ def session_picker(request: Request, db: SessionDep, user: CurrentUser, token: T
     for b in bouts:
         assert b.id is not None
         rows.append(
-            f"<tr><td>{b.id}</td><td>{escape(b.name)}</td><td>{escape(b.date)}</td>"
+            f"<tr><td>{b.id}</td><td>{escape(b.name)} (<a href='/sessions/{b.id}/report'>report</a>)</td><td>{escape(b.date)}</td>"
             f"<td>{escape(', '.join(b.athletes))}</td><td>{b.n_cameras}</td><td>{b.fps:g}</td>"
             f"<td>{_job_cell(latest.get(b.id))}</td>"
             f'<td><button id="v{b.id}" onclick="openViewer({b.id})">Open viewer</button></td></tr>'
