@@ -1,9 +1,11 @@
-"""Start (or reuse) one viewer process per (session, role) on a free port.
+"""Start (or reuse) one viewer process per (session, role, owner) on a free loopback port.
 
-Used by the server (``POST /api/sessions/{id}/viewer``) and by ``cornerman demo``. This
-module imports neither torch nor viser: the viewer runs in its own process
-(``python -m webui.app``), which also keeps the body model and MuJoCo out of the server.
-The token goes to the child through its environment, not its command line.
+Used by the server, which serves each viewer to its signed-in owner under
+``/viewer/{session}/`` (``server.api.routes.viewer_proxy``). The viser port binds to
+127.0.0.1 only: browsers reach a viewer through the app, never directly. This module
+imports neither torch nor viser: the viewer runs in its own process (``python -m
+webui.app``), which also keeps the body model and MuJoCo out of the server. The token goes
+to the child through its environment, not its command line.
 """
 
 from __future__ import annotations
@@ -17,12 +19,15 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = float(os.environ.get("CORNERMAN_VIEWER_START_TIMEOUT_S", "90"))
+HOST = "127.0.0.1"
+"""The only address viewers listen on."""
 
 
 @dataclass
@@ -51,38 +56,49 @@ def _listening(host: str, port: int) -> bool:
         return False
 
 
-def _public_url(host: str, port: int) -> str:
-    public = os.environ.get("CORNERMAN_VIEWER_PUBLIC_HOST") or ("127.0.0.1" if host in ("0.0.0.0", "") else host)
-    return f"http://{public}:{port}/"
+def _local_url(port: int) -> str:
+    return f"http://{HOST}:{port}/"
+
+
+def port_of(session_id: str, role: str, owner: str) -> int | None:
+    """Port of the live viewer of ``session_id`` for ``(role, owner)``, or None."""
+    with _lock:
+        v = _viewers.get((str(session_id), role, owner))
+        return v.port if v is not None and v.proc.poll() is None else None
 
 
 def start_viewer(
     session_id: str,
     session_dir: Path,
     api_url: str,
-    token: str,
+    token: str | Callable[[], str],
     role: str,
-    host: str | None = None,
+    owner: str | None = None,
 ) -> str:
-    """URL of a running viewer of ``session_dir`` for ``role``; starts one if needed.
+    """Local URL (``http://127.0.0.1:PORT/``) of a running viewer of ``session_dir`` for
+    ``(role, owner)``; starts one if needed.
 
-    Waits until the viewer accepts connections (``START_TIMEOUT_S``); raises
-    ``ValueError`` (with the tail of its log) if it exits or does not start in time.
-    ``host`` defaults to ``CORNERMAN_VIEWER_HOST`` or 127.0.0.1; the returned URL uses
-    ``CORNERMAN_VIEWER_PUBLIC_HOST`` when set.
+    ``token`` is the API token the viewer acts with, or a function that makes one (called
+    only when a viewer is started). ``owner`` keys the viewer to one user (default: a hash
+    of ``token``, which must then be a string). Waits until the viewer accepts connections
+    (``START_TIMEOUT_S``); raises ``ValueError`` (with the tail of its log) if it exits or
+    does not start in time.
     """
-    host = host or os.environ.get("CORNERMAN_VIEWER_HOST", "127.0.0.1")
+    if owner is None:
+        if not isinstance(token, str):
+            raise ValueError("start_viewer: pass owner= when the token is made by a function")
+        owner = hashlib.sha256(token.encode()).hexdigest()[:16]
     # One viewer per (session, role) and user: edits made in a viewer are authored with
     # its token, so two users never share one.
-    key = (str(session_id), role, hashlib.sha256(token.encode()).hexdigest()[:16])
+    key = (str(session_id), role, owner)
     with _lock:
         v = _viewers.get(key)
         if v is not None and v.proc.poll() is None:
-            return _public_url(v.host, v.port)
+            return _local_url(v.port)
         if v is not None:
             _stop(v)
             del _viewers[key]
-        port = free_port(host)
+        port = free_port(HOST)
         log_dir = Path(session_dir) / "logs"
         log_dir.mkdir(parents=True, exist_ok=True)
         log_path = log_dir / f"viewer-{role}.log"
@@ -92,17 +108,17 @@ def start_viewer(
             "--api-url", api_url,
             "--role", role,
             "--port", str(port),
-            "--host", host,
+            "--host", HOST,
             "--session-id", str(session_id),
             "--parent-pid", str(os.getpid()),
         ]  # fmt: skip
-        env = dict(os.environ, CORNERMAN_VIEWER_TOKEN=token)
+        env = dict(os.environ, CORNERMAN_VIEWER_TOKEN=token if isinstance(token, str) else token())
         env.setdefault("OMP_NUM_THREADS", "1")
         with open(log_path, "ab") as logf:
             proc = subprocess.Popen(cmd, stdout=logf, stderr=subprocess.STDOUT, env=env, start_new_session=True)
-        v = _Viewer(proc, port, host, log_path)
+        v = _Viewer(proc, port, HOST, log_path)
         t0 = time.monotonic()
-        while not _listening("127.0.0.1" if host in ("0.0.0.0", "") else host, port):
+        while not _listening(HOST, port):
             if proc.poll() is not None or time.monotonic() - t0 > START_TIMEOUT_S:
                 _stop(v)
                 tail = log_path.read_text(errors="replace")[-2000:] if log_path.exists() else ""
@@ -110,7 +126,7 @@ def start_viewer(
             time.sleep(0.1)
         _viewers[key] = v
         log.info("viewer of session %s (%s) on port %d (pid %d)", session_id, role, port, proc.pid)
-        return _public_url(host, port)
+        return _local_url(port)
 
 
 def _stop(v: _Viewer, timeout_s: float = 5.0) -> None:

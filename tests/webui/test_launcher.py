@@ -1,4 +1,4 @@
-"""webui.launcher: one viewer process per (session, role, user), reused, stopped; and stays light."""
+"""webui.launcher: one viewer process per (session, role, user), on 127.0.0.1, reused, stopped; and stays light."""
 
 from __future__ import annotations
 
@@ -32,6 +32,34 @@ def test_start_reuse_stop(tmp_path: Path) -> None:
         assert sorted(len(v) for v in launcher.running().values()) == [2]
         launcher.stop_viewer("s1")
         assert launcher.running() == {}
+    finally:
+        launcher.stop_all()
+
+
+def test_owner_keyed_viewer_mints_its_token_once(tmp_path: Path) -> None:
+    """With ``owner=``, the token function runs only when a viewer starts, and ``port_of`` finds it."""
+    import os
+
+    sdir = build_session(tmp_path, n_frames=4)
+    minted: list[str] = []
+
+    def mint() -> str:
+        minted.append(f"cm_minted{len(minted)}")
+        return minted[-1]
+
+    try:
+        assert launcher.port_of("s3", "annotator", "user:7") is None
+        url = launcher.start_viewer("s3", sdir, api_url="", token=mint, role="annotator", owner="user:7")
+        assert launcher.start_viewer("s3", sdir, api_url="", token=mint, role="annotator", owner="user:7") == url
+        assert minted == ["cm_minted0"]  # reused without minting again
+        port = launcher.port_of("s3", "annotator", "user:7")
+        assert port is not None and url == f"http://127.0.0.1:{port}/"
+        assert launcher.port_of("s3", "annotator", "user:8") is None  # another user has none
+        v = launcher._viewers[("s3", "annotator", "user:7")]
+        env = Path(f"/proc/{v.proc.pid}/environ").read_bytes().split(b"\0")
+        assert b"CORNERMAN_VIEWER_TOKEN=cm_minted0" in env and os.environ.get("CORNERMAN_VIEWER_TOKEN") != "cm_minted0"
+        with pytest.raises(ValueError, match="owner="):
+            launcher.start_viewer("s3", sdir, api_url="", token=mint, role="annotator")
     finally:
         launcher.stop_all()
 
