@@ -14,7 +14,7 @@ from pipeline.artifacts import ArtifactStore, FileHashCache, Manifest, config_ha
 from pipeline.io.session_rig import calibration_path, check_multiview, session_rig
 from pipeline.runner.code_version import stage_code_hash
 from pipeline.runner.registry import STAGE_ORDER, get_specs
-from pipeline.runner.spec import NullProgress, StageContext, StageSpec
+from pipeline.runner.spec import NullProgress, PreviousRun, StageContext, StageSpec
 from pipeline.schema.annotations import annotations_for, annotations_hash, load_annotations
 from pipeline.schema.config_types import build_config
 from pipeline.schema.session import SessionConfig
@@ -95,6 +95,21 @@ def _code_version(spec: StageSpec) -> str:
     """The stage's code version: a hash of the code of every module it can run
     (``pipeline.runner.code_version``), so a code change makes its artifacts stale."""
     return f"cornerman {__version__} / {spec.name} {stage_code_hash(spec.name)}"
+
+
+def previous_run(m: Manifest | None, chash: str, code_version: str, force: bool) -> PreviousRun | None:
+    """A stage's previous artifacts as a step sees them, with why they may not be reused
+    (a forced run recomputes; another config or code version gave other results)."""
+    if m is None:
+        return None
+    why = ""
+    if force:
+        why = "forced re-run"
+    elif m.config_hash != chash:
+        why = "the stage config changed"
+    elif m.code_version != code_version:
+        why = f"the code changed ({m.code_version} -> {code_version})"
+    return PreviousRun(m, why)
 
 
 def stage_status(session_dir: Path) -> dict[str, StageStatus]:
@@ -201,6 +216,7 @@ def run(
             raise ValueError(f"stage {name!r} needs {missing}, which have no artifacts")
         log.info("running stage %s", name)
         sink.stage_started(name, None)
+        ctx.previous = previous_run(m, chash, _code_version(spec), force)
         t0 = time.perf_counter()
         outputs = spec.execute(ctx, cfg)
         dt = time.perf_counter() - t0

@@ -14,7 +14,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any, Protocol
 
-from pipeline.artifacts import ArtifactStore
+from pipeline.artifacts import ArtifactStore, Manifest
 from pipeline.schema.annotations import Annotation, annotations_for, load_annotations
 from pipeline.schema.camera import CameraRig
 from pipeline.schema.session import SessionConfig
@@ -45,6 +45,19 @@ class NullProgress:
         pass
 
 
+@dataclass(frozen=True)
+class PreviousRun:
+    """The stage's artifacts from its last run, still in place while it re-runs (the runner
+    swaps the new ones in only after the step returns).
+
+    manifest: their manifest; refusal: why they must not be reused ("" when they may: the
+    same config hash and code version, and no forced run). Whether the frames and persons
+    still match is the stage's to check."""
+
+    manifest: Manifest
+    refusal: str = ""
+
+
 @dataclass
 class StageContext:
     """Everything a step may read. Steps never glob or guess paths."""
@@ -55,6 +68,8 @@ class StageContext:
     stage: str
     progress_sink: Any = field(default_factory=NullProgress)
     metrics: dict[str, Any] = field(default_factory=dict)
+    previous: PreviousRun | None = None
+    """This stage's previous artifacts (set by the runner; None when there are none)."""
 
     def resolve(self, rel: str) -> Path:
         """Resolve a path from session.json (relative to the session folder)."""
@@ -87,6 +102,29 @@ class StageContext:
 
     def progress(self, done: float, total: float | None = None, message: str = "") -> None:
         self.progress_sink.stage_progress(self.stage, done, total, message)
+
+    def reusable_previous(self, enabled: bool) -> PreviousRun | None:
+        """The previous run to build an incremental re-run on, or None; when None, the
+        metric ``incremental`` says why (``enabled``: the stage config's ``incremental``)."""
+        why = ""
+        if not enabled:
+            why = "incremental is off"
+        elif self.previous is None:
+            why = "no previous run"
+        else:
+            why = self.previous.refusal
+        if why:
+            self.metrics["incremental"] = f"full run: {why}"
+            return None
+        return self.previous
+
+    def load_previous(self, name: str, cls: type) -> Any:
+        """``<name>.npz`` of this stage's previous run as schema type ``cls``."""
+        return self.store.load(self.stage, name, cls)
+
+    def read_previous_text(self, name: str) -> str:
+        """Text file ``name`` of this stage's previous run."""
+        return self.store.path(self.stage, name).read_text()
 
     def load(self, stage: str, name: str, cls: type) -> Any:
         return self.store.load(stage, name, cls)
