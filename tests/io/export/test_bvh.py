@@ -8,24 +8,20 @@ import re
 import zipfile
 from pathlib import Path
 
+import bvhio
 import numpy as np
 import pytest
+import torch
+from typer.testing import CliRunner
 
-pytest.importorskip("torch")
-pytest.importorskip("anny")
-bvhio = pytest.importorskip("bvhio")
-
-import torch  # noqa: E402
-from typer.testing import CliRunner  # noqa: E402
-
-from pipeline.backends.anny.fk import forward_kinematics  # noqa: E402
-from pipeline.backends.anny.model import anny_body  # noqa: E402
-from pipeline.backends.anny.skeleton import fit_skeleton  # noqa: E402
-from pipeline.cli.main import app  # noqa: E402
-from pipeline.io.export import ExportSelection, export_files  # noqa: E402
-from pipeline.io.export.bvh import bvh_text  # noqa: E402
-from pipeline.schema.results import BodyFit  # noqa: E402
-from tests.io.export.fitted_session import ATHLETES, FPS, INVALID_ROWS, write_fitted_session  # noqa: E402
+from pipeline.backends.anny.fk import forward_kinematics
+from pipeline.backends.anny.model import anny_body
+from pipeline.backends.anny.skeleton import fit_skeleton
+from pipeline.cli.main import app
+from pipeline.io.export import ExportSelection, export_files
+from pipeline.io.export.bvh import bvh_text
+from pipeline.schema.results import BodyFit
+from tests.io.export.fitted_session import ATHLETES, FPS, INVALID_ROWS, write_fitted_session
 
 TOL_M = 1e-3
 
