@@ -241,4 +241,5 @@ def load_report_data(session_dir: Path, names: dict[int, str] | None = None, col
         names={**dict(enumerate(cfg.athletes)), **(names or {})}, colors=dict(colors or {}), date=date,
         analysed_unix_s=float(m.created_unix_s) if m is not None else 0.0,
         positions_xy_m=pos[0] if pos else None, positions_valid=pos[1] if pos else None,
+        ring_xy_m=np.array(cfg.ring_xy_m) if cfg.ring_xy_m else None, rounds_s=cfg.rounds_s,
     )  # fmt: skip

@@ -45,6 +45,10 @@ class SessionConfig:
         stage_config: per-stage config overrides, ``{"triangulate": {"min_views": 2}}``.
         stages: stages to run (default: every stage the runner knows).
         auto_rerun: when an annotation is written, re-run the stale stages.
+        rounds_s: ``[[start, end], ...]`` of each round, seconds from the bout's first frame
+            (0 <= start < end, in order, not overlapping); empty = not known.
+        ring_xy_m: the ring's corners ``[[x, y], ...]`` in the world frame, metres, in order
+            around the ring (>= 3); empty = not known.
     """
 
     name: str
@@ -62,6 +66,8 @@ class SessionConfig:
     stage_config: dict[str, dict[str, Any]] = field(default_factory=dict)
     stages: tuple[str, ...] = ()
     auto_rerun: bool = True
+    rounds_s: tuple[tuple[float, float], ...] = ()
+    ring_xy_m: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if self.source not in ("video", "keypoints", "tracks"):
@@ -88,6 +94,18 @@ class SessionConfig:
                 f"session.cameras (--cameras) lists one camera {list(self.cameras)}; a 3D reconstruction needs >= 2 views "
                 "(list at least two, or none for every calibrated camera)"
             )
+        last_end = 0.0
+        for r in self.rounds_s:
+            if len(r) != 2 or not 0.0 <= r[0] < r[1] or r[0] < last_end:
+                raise ValueError(
+                    f"session.rounds_s must be [[start, end], ...] seconds, 0 <= start < end, in order and not "
+                    f"overlapping; got {[list(x) for x in self.rounds_s]}"
+                )
+            last_end = r[1]
+        if self.ring_xy_m and (len(self.ring_xy_m) < 3 or any(len(c) != 2 for c in self.ring_xy_m)):
+            raise ValueError(
+                f"session.ring_xy_m must be >= 3 corners [[x, y], ...] in metres; got {[list(c) for c in self.ring_xy_m]}"
+            )
         if not isinstance(self.stage_config, dict):
             raise ValueError(
                 "session.stage_config must be an object of per-stage settings "
@@ -97,7 +115,9 @@ class SessionConfig:
     def camera_inputs(self) -> dict[str, str]:
         """Camera name -> input path of the ``videos`` or ``keypoints`` source, restricted to
         ``cameras`` when set (``{}`` for ``source="tracks"``)."""
-        inputs = self.videos if self.source == "video" else self.keypoints if self.source == "keypoints" else {}
+        inputs = (
+            self.videos if self.source == "video" else self.keypoints if self.source == "keypoints" else {}
+        )
         return {c: p for c, p in inputs.items() if not self.cameras or c in self.cameras}
 
     def to_json(self) -> str:
@@ -121,6 +141,14 @@ class SessionConfig:
                 if not isinstance(kw[k], list | tuple):
                     raise ValueError(f"{where}: {k!r} must be a list, got {type(kw[k]).__name__}")
                 kw[k] = tuple(kw[k])
+        for k in ("rounds_s", "ring_xy_m"):
+            if k in kw:
+                pairs = kw[k]
+                if not isinstance(pairs, list | tuple) or not all(
+                    isinstance(p, list | tuple) and all(isinstance(v, int | float) for v in p) for p in pairs
+                ):
+                    raise ValueError(f"{where}: {k!r} must be a list of number pairs, got {pairs!r}")
+                kw[k] = tuple(tuple(float(v) for v in p) for p in pairs)
         try:
             return cls(**kw)
         except TypeError as e:

@@ -212,3 +212,23 @@ def test_cli_report_on_a_session_the_runner_analysed(tmp_path: Path) -> None:
     rate = _charts(root, "work-rate")[0].find_all("rect", **{"class": "mark"})
     assert len(rate) == 2 * math.ceil(data.duration_s / 0.2 - 1e-9)
     assert sum(int(b.attrs["data-count"]) for b in rate) == data.events.n_punches
+
+
+def test_rounds_and_ring_come_from_session_json(tmp_path: Path) -> None:
+    import json
+
+    from pipeline.schema import SessionConfig
+
+    folder = tmp_path / "bout"
+    write_analysed_bout(folder)
+    d = json.loads((folder / "session.json").read_text())
+    d.update(rounds_s=[[0, 4], [5, 9.5]], ring_xy_m=[[-3, -3], [3, -3], [3, 3], [-3, 3]])
+    (folder / "session.json").write_text(json.dumps(d))
+    data = load_report_data(folder)
+    assert data.rounds_s == ((0.0, 4.0), (5.0, 9.5)) and data.ring_xy_m is not None and data.ring_xy_m.shape == (4, 2)
+    html = render_report(data)
+    assert "Rounds from the session" in html and "round 2" in html and "ring unknown" not in html
+    for bad, why in (({"rounds_s": [[4, 2]]}, "rounds_s"), ({"rounds_s": [[0, 5], [3, 8]]}, "overlapping"),
+                     ({"ring_xy_m": [[0, 0], [1, 1]]}, "ring_xy_m"), ({"rounds_s": "1-2"}, "number pairs")):  # fmt: skip
+        with pytest.raises(ValueError, match=why):
+            SessionConfig.from_dict({**d, **bad})
