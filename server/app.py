@@ -1,4 +1,5 @@
-"""``create_app(settings)``: the FastAPI application (API under ``/api``, HTML picker at ``/``)."""
+"""``create_app(settings)``: the FastAPI application (API under ``/api``, sign-in at ``/login``, HTML picker at
+``/``, each session's viewer proxied under ``/viewer/{id}/``)."""
 
 from __future__ import annotations
 
@@ -11,8 +12,9 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from pipeline import __version__
 from server.api.main import api_router
-from server.api.routes import pages
+from server.api.routes import login, pages, viewer_proxy
 from server.core.config import Settings, get_settings
+from server.core.security import install_log_redaction
 from server.db import init_db, make_engine
 from server.storage import PathNotAllowed
 
@@ -95,7 +97,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         title="cornerman",
         version=__version__,
         description="Multi-person 3D motion capture for combat sports: sessions, jobs, identities, annotations, "
-        "results. Authenticate with `Authorization: Bearer <token>` (every route except /api/health).",
+        "results. Authenticate with `Authorization: Bearer <token>` (every route except /api/health); browsers "
+        "sign in at /login instead (an HttpOnly session cookie). Tokens never go in URLs.",
     )
     app.state.settings = settings
     app.state.engine = engine
@@ -110,7 +113,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return JSONResponse(status_code=422, content={"detail": str(exc)})
 
     app.include_router(api_router, prefix="/api")
+    app.include_router(login.router)
     app.include_router(pages.router)
+    app.include_router(viewer_proxy.router)
+    install_log_redaction()  # uvicorn's access log never shows a token, even from an old ``?token=`` link
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_upload_bytes)
     return app
 

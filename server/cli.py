@@ -19,19 +19,20 @@ from sqlmodel import Session, select
 
 from server import crud
 from server.core.config import Settings
+from server.core.security import install_log_redaction
 from server.db import init_db, make_engine
 from server.models import Bout, JobCreate, UserCreate
 
 log = logging.getLogger(__name__)
 DEFAULT_USERS: tuple[tuple[str, str], ...] = (("coach", "coach"), ("annotator", "annotator"), ("admin", "admin"))
-"""(user name, role) created on the first start; also the order the links are printed in."""
+"""(user name, role) created on the first start; also the order their tokens are printed in."""
 
 ROLE_LABELS: dict[str, str] = {
     "coach": "watch bouts (read-only)",
     "annotator": "watch + fix identities and keypoints",
     "admin": "everything, incl. users and re-runs",
 }
-"""What each role's printed link lets its holder do."""
+"""What each role's printed token lets its holder do."""
 
 STARTUP_TIMEOUT_S = 60.0
 """How long ``serve`` waits for the API to answer before it says it did not start."""
@@ -188,16 +189,19 @@ def _wait_until_up(server: Any, base: str, timeout_s: float) -> bool:
 
 
 def print_links(console: Console, base: str, tokens: dict[str, str], demo_id: int | None) -> None:
-    """One line per role, coach first, each with its sign-in link; then the API docs."""
+    """The sign-in page, then one line per role (coach first) with its user name and token, the
+    demo viewer and the API docs. No link carries a token: a copied link grants nothing."""
     roles = dict(DEFAULT_USERS)
+    console.print(f"  {'sign in':<10} {'user name + token below':<40} {base}/login", soft_wrap=True)
     for name, _ in DEFAULT_USERS:
         if name in tokens:
-            console.print(f"  {name:<10} {ROLE_LABELS[roles[name]]:<40} {base}/?token={tokens[name]}", soft_wrap=True)
+            console.print(f"  {name:<10} {ROLE_LABELS[roles[name]]:<40} token {tokens[name]}", soft_wrap=True)
     if not tokens:
-        console.print("  sign-in links need a token: existing users were kept; `cornerman serve --print-tokens` "
-                      "issues new ones, `cornerman user create NAME --role coach` adds a user", soft_wrap=True)
+        console.print("  tokens: existing users were kept; `cornerman serve --print-tokens` issues new ones, "
+                      "`cornerman user create NAME --role coach` adds a user", soft_wrap=True)
     if demo_id is not None:
-        console.print(f"  demo bout: session {demo_id}, listed on each link's page (\"Open viewer\")", soft_wrap=True)
+        console.print(f"  {'demo bout':<10} {f'session {demo_id} (after signing in)':<40} {base}/viewer/{demo_id}/",
+                      soft_wrap=True)
     console.print(f"  {'API docs':<10} {'':<40} {base}/docs", soft_wrap=True)
 
 
@@ -221,9 +225,9 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1, home: Pat
     """Run the API (uvicorn) plus ``workers`` worker processes until interrupted.
 
     Checks the port first (``ValueError`` naming a free one when it is taken). Once the API
-    answers, prints one link per role (coach, annotator, admin) with, on the first start
-    (or with ``open_tokens_print``), fresh tokens for those default users. ``ValueError``
-    when uvicorn fails to start.
+    answers, prints the sign-in link and, on the first start (or with ``open_tokens_print``),
+    fresh tokens for the default users (coach, annotator, admin). ``ValueError`` when
+    uvicorn fails to start.
     """
     import uvicorn
 
@@ -235,6 +239,7 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1, home: Pat
     app = create_app(settings)
     demo_id = register_demo(settings, demo_session) if demo_session is not None else None
     server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="info"))
+    install_log_redaction()  # again after uvicorn's logging set-up: its access log never shows a token
     procs = start_workers(settings, workers)
     log.info("workers started (pids %s)", [p.pid for p in procs])
     threading.Thread(

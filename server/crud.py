@@ -68,6 +68,34 @@ def get_user_by_token(session: Session, *, token: str) -> User | None:
     return row
 
 
+def get_token_owner(session: Session, *, token: str) -> tuple[User, ApiToken] | None:
+    """The user of ``token`` and its ``ApiToken`` row (label, creation time); None when unknown."""
+    row = session.exec(
+        select(User, ApiToken).join(ApiToken, col(ApiToken.user_id) == col(User.id))
+        .where(ApiToken.token_hash == hash_token(token))
+    ).first()
+    return None if row is None else (row[0], row[1])
+
+
+def revoke_token(session: Session, *, token: str) -> bool:
+    """Delete ``token``; True when it existed."""
+    row = session.exec(select(ApiToken).where(ApiToken.token_hash == hash_token(token))).first()
+    if row is None:
+        return False
+    session.delete(row)
+    session.commit()
+    return True
+
+
+def revoke_tokens(session: Session, *, user: User, label: str) -> int:
+    """Delete every token of ``user`` labelled ``label``; returns how many."""
+    rows = session.exec(select(ApiToken).where(ApiToken.user_id == user.id, ApiToken.label == label)).all()
+    for row in rows:
+        session.delete(row)
+    session.commit()
+    return len(rows)
+
+
 # ---------------------------------------------------------------- sessions (bouts)
 def create_bout(session: Session, *, bout: Bout) -> Bout:
     """Insert a bout and its default identities (one per athlete: Red, Blue, ...)."""

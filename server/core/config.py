@@ -46,6 +46,13 @@ class Settings(BaseSettings):
     log_tail_lines: int = 40
     """Lines of job log kept in the database (``Job.log_tail``)."""
 
+    session_max_age_s: float = 12 * 3600.0
+    """Lifetime of a browser login (the ``/login`` session cookie) in seconds, > 0; sign in again after it."""
+
+    cookie_secure: bool = False
+    """Mark the session cookie ``Secure`` (HTTPS only) even when the request reached the app over plain HTTP
+    (set it behind a TLS-terminating proxy). Requests that arrive over HTTPS always get ``Secure``."""
+
     @property
     def db_path(self) -> Path:
         return self.home / "cornerman.db"

@@ -231,13 +231,13 @@ def test_sse_streams_until_terminal(client: TestClient, tokens: dict, bout_folde
 
 def test_picker_page_lists_sessions(client: TestClient, tokens: dict, bout_folder: Path) -> None:
     make_bout(client, tokens["admin"], bout_folder, name="Final <b>bout</b>")
-    r = client.get("/", params={"token": tokens["coach"]})
+    assert client.get("/", follow_redirects=False).headers["location"] == "/login"  # not signed in
+    r = client.post("/login", data={"name": "coach1", "token": tokens["coach"]})  # -> 303 to the picker
     assert r.status_code == 200 and "Open viewer" in r.text
     assert "Final &lt;b&gt;bout&lt;/b&gt;" in r.text  # escaped
-    assert client.cookies.get("cornerman_token") == tokens["coach"]
-    assert client.get("/").status_code == 200  # cookie now
+    assert 'href="/viewer/' in r.text and tokens["coach"] not in r.text
     client.cookies.clear()
-    assert client.get("/").status_code == 401
+    assert client.get("/", follow_redirects=False).status_code == 303
 
 
 def test_viewer_route_503_without_launcher_or_url(client: TestClient, tokens: dict, bout_folder: Path,
@@ -252,8 +252,11 @@ def test_viewer_route_503_without_launcher_or_url(client: TestClient, tokens: di
     fake.start_viewer = lambda **kw: calls.append(kw) or "http://127.0.0.1:8099/"  # type: ignore[attr-defined]
     monkeypatch.setitem(sys.modules, "webui.launcher", fake)
     r = client.post(f"/api/sessions/{sid}/viewer", headers=auth(tokens["coach"]))
-    assert r.status_code == 200 and r.json() == {"url": "http://127.0.0.1:8099/"}
-    assert calls[0]["session_id"] == str(sid) and calls[0]["role"] == "coach" and calls[0]["token"] == tokens["coach"]
+    assert r.status_code == 200 and r.json() == {"url": f"http://testserver/viewer/{sid}/"}  # under the app
+    assert calls[0]["session_id"] == str(sid) and calls[0]["role"] == "coach"
+    viewer_token = calls[0]["token"]()  # minted for the caller, not the caller's own token
+    assert viewer_token != tokens["coach"] and calls[0]["owner"].startswith("user:")
+    assert client.get("/api/me", headers=auth(viewer_token)).json()["name"] == "coach1"
     assert calls[0]["api_url"].endswith("/api")
     monkeypatch.setitem(sys.modules, "webui.launcher", None)  # import fails
     importlib.invalidate_caches()

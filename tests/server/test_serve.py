@@ -63,10 +63,11 @@ def test_links_are_labelled_by_role_coach_first() -> None:
     console = Console(record=True, width=300)
     print_links(console, "http://127.0.0.1:8000", {"admin": "tA", "annotator": "tN", "coach": "tC"}, demo_id=3)
     text = console.export_text()
-    lines = [ln.strip() for ln in text.splitlines() if "?token=" in ln]
+    lines = [ln.strip() for ln in text.splitlines() if " token t" in ln]
     assert [ln.split()[0] for ln in lines] == ["coach", "annotator", "admin"]
-    assert lines[0].endswith("http://127.0.0.1:8000/?token=tC") and "read-only" in lines[0]
-    assert "session 3" in text
+    assert lines[0].endswith("token tC") and "read-only" in lines[0]
+    assert "?token=" not in text and "http://127.0.0.1:8000/login" in text  # no token in any link
+    assert "session 3" in text and "http://127.0.0.1:8000/viewer/3/" in text
 
 
 def test_serve_prints_the_links_once_the_api_answers(tmp_path: Path) -> None:
@@ -80,13 +81,13 @@ def test_serve_prints_the_links_once_the_api_answers(tmp_path: Path) -> None:
                                 start_new_session=True)
     try:
         t_end = time.monotonic() + 60
-        while "?token=" not in log_path.read_text() or "admin" not in log_path.read_text().split("ready", 1)[-1]:
+        while " token cm_" not in log_path.read_text() or "admin" not in log_path.read_text().split("ready", 1)[-1]:
             assert proc.poll() is None and time.monotonic() < t_end, log_path.read_text()
             time.sleep(0.2)
         log = log_path.read_text()
-        assert log.index("Uvicorn running on") < log.index("cornerman server ready") < log.index("?token=")
-        roles = [ln.split()[0] for ln in log.splitlines() if "?token=" in ln]
-        assert roles == ["coach", "annotator", "admin"]
+        assert log.index("Uvicorn running on") < log.index("cornerman server ready") < log.index("/login")
+        roles = [ln.split()[0] for ln in log.splitlines() if " token cm_" in ln]
+        assert roles == ["coach", "annotator", "admin"] and "?token=" not in log
     finally:
         proc.send_signal(signal.SIGINT)  # serve stops its workers and exits without a traceback
         try:

@@ -1,7 +1,7 @@
 """HTML page: the session picker (sessions, their jobs with live status, "Open viewer").
 
-Server-rendered, minimal CSS, no build step. The token comes from ``?token=`` (then kept
-in an HttpOnly-less cookie so the page's script can call the API) or the cookie.
+Server-rendered, minimal CSS, no build step. It needs the login cookie (``/login``);
+without it the browser is sent to ``/login``. "Open viewer" links to ``/viewer/{id}/``.
 """
 
 from __future__ import annotations
@@ -9,12 +9,13 @@ from __future__ import annotations
 from html import escape
 from typing import Any
 
-from fastapi import APIRouter, Request
-from fastapi.responses import HTMLResponse
+from fastapi import APIRouter, status
+from fastapi.responses import HTMLResponse, RedirectResponse
 
 from server import crud
-from server.api.deps import TOKEN_COOKIE, CurrentUser, SessionDep, TokenDep
+from server.api.deps import CookieUser, SessionDep
 from server.api.routes.report import router as report_router
+from server.api.routes.viewer import viewer_path
 from server.models import Job
 
 router = APIRouter(tags=["pages"], include_in_schema=False)
@@ -30,14 +31,6 @@ th{background:#f0f0f0;font-weight:600}.st{font-weight:600}.queued{color:#8a6d00}
 """
 
 SCRIPT = """
-async function openViewer(id){
-  const b=document.getElementById('v'+id); b.disabled=true; b.textContent='starting…';
-  try{
-    const r=await fetch('/api/sessions/'+id+'/viewer',{method:'POST',headers:{'Authorization':'Bearer '+TOKEN}});
-    const j=await r.json();
-    if(!r.ok){alert('Viewer: '+(j.detail||r.status));}else{window.open(j.url,'_blank');}
-  }finally{b.disabled=false;b.textContent='Open viewer';}
-}
 setInterval(()=>{if(!document.hidden)location.reload();},5000);
 """
 
@@ -63,7 +56,9 @@ def _job_cell(job: Job | None) -> str:
 
 
 @router.get("/", response_class=HTMLResponse)
-def session_picker(request: Request, db: SessionDep, user: CurrentUser, token: TokenDep) -> Any:
+def session_picker(db: SessionDep, user: CookieUser) -> Any:
+    if user is None:
+        return RedirectResponse("/login", status_code=status.HTTP_303_SEE_OTHER)
     bouts = crud.list_bouts(db)
     jobs = crud.list_jobs(db)
     latest: dict[int, Job] = {}
@@ -76,7 +71,7 @@ def session_picker(request: Request, db: SessionDep, user: CurrentUser, token: T
             f"<tr><td>{b.id}</td><td>{escape(b.name)} (<a href='/sessions/{b.id}/report'>report</a>)</td><td>{escape(b.date)}</td>"
             f"<td>{escape(', '.join(b.athletes))}</td><td>{b.n_cameras}</td><td>{b.fps:g}</td>"
             f"<td>{_job_cell(latest.get(b.id))}</td>"
-            f'<td><button id="v{b.id}" onclick="openViewer({b.id})">Open viewer</button></td></tr>'
+            f'<td><a id="v{b.id}" href="{viewer_path(b.id)}" target="_blank" rel="noopener">Open viewer</a></td></tr>'
         )
     recent = sorted(jobs, key=lambda j: j.id or 0, reverse=True)[:30]
     job_rows = [
@@ -85,19 +80,15 @@ def session_picker(request: Request, db: SessionDep, user: CurrentUser, token: T
         f"<td>{escape(j.requested_by)}</td><td>{j.created_at:%Y-%m-%d %H:%M:%S}</td></tr>"
         for j in recent
     ]
-    import json
-
     html = f"""<!doctype html><html><head><meta charset="utf-8"><title>cornerman sessions</title>
 <style>{CSS}</style></head><body>
 <h1>cornerman — sessions</h1><div class="who">signed in as {escape(user.name)} ({escape(user.role)}) ·
-<a href="/docs">API docs</a></div>
+<a href="/docs">API docs</a> ·
+<form method="post" action="/logout" style="display:inline"><button type="submit">Sign out</button></form></div>
 <table><tr><th>id</th><th>bout</th><th>date</th><th>athletes</th><th>cams</th><th>fps</th><th>latest job</th><th></th></tr>
 {''.join(rows) or '<tr><td colspan="8">no sessions yet</td></tr>'}</table>
 <h2 style="font-size:1.1rem;margin-top:2rem">Recent jobs</h2>
 <table><tr><th>job</th><th>session</th><th>status</th><th>stages</th><th>reason</th><th>by</th><th>created (UTC)</th></tr>
 {''.join(job_rows) or '<tr><td colspan="7">no jobs yet</td></tr>'}</table>
-<script>const TOKEN={json.dumps(token)};{SCRIPT}</script></body></html>"""
-    resp = HTMLResponse(html)
-    if request.query_params.get("token"):
-        resp.set_cookie(TOKEN_COOKIE, token, httponly=False, samesite="strict")
-    return resp
+<script>{SCRIPT}</script></body></html>"""
+    return HTMLResponse(html)

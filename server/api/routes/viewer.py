@@ -1,27 +1,77 @@
-"""Route: start (or reuse) the interactive viewer of a session (``webui.launcher``)."""
+"""Route: start (or reuse) the caller's interactive viewer of a session (``webui.launcher``).
+
+Each viewer is a viser process on a loopback port, keyed by (session, role, user) and
+acting with an API token minted for that user (label ``viewer:<session>``, replaced at each
+start), so its edits carry the user's name and are checked against the user's role. The
+browser reaches it only through ``/viewer/{session}/`` (``viewer_proxy``).
+"""
 
 from __future__ import annotations
 
 import importlib
 from typing import Any
+from urllib.parse import urlsplit
 
 from fastapi import APIRouter, HTTPException, Request, status
+from sqlalchemy.engine import Engine
+from sqlmodel import Session
+from starlette.requests import HTTPConnection
 
-from server.api.deps import CurrentUser, SessionDep, TokenDep, bout_dir, get_bout_or_404
+from server import crud
+from server.api.deps import CurrentUser, SessionDep, bout_dir, get_bout_or_404
+from server.models import Bout, User
 
 router = APIRouter(tags=["viewer"])
 
 
-@router.post("/sessions/{session_id}/viewer")
-def open_viewer(request: Request, db: SessionDep, user: CurrentUser, token: TokenDep, session_id: int) -> dict[str, Any]:
-    """Start a viser viewer process for this session with the caller's token and role; returns its URL."""
-    bout = get_bout_or_404(db, session_id)
+def viewer_path(session_id: int) -> str:
+    """The path under which the app serves a session's viewer (trailing slash included)."""
+    return f"/viewer/{session_id}/"
+
+
+def local_api_url(conn: HTTPConnection) -> str:
+    """The API's base URL as this machine reaches it: the address the request arrived on."""
+    server = conn.scope.get("server")
+    if server is None or server[1] is None:
+        return str(conn.base_url).rstrip("/") + "/api"
+    host, port = server
+    host = {"0.0.0.0": "127.0.0.1", "::": "::1", "": "127.0.0.1"}.get(host, host)
+    return f"http://{f'[{host}]' if ':' in host else host}:{port}/api"
+
+
+def ensure_viewer(engine: Engine, user: User, bout: Bout, api_url: str) -> int:
+    """Loopback port of ``user``'s viewer of ``bout`` (started when none runs).
+
+    ``HTTPException`` 503 when the viewer is not installed or does not start.
+    """
     try:
         launcher = importlib.import_module("webui.launcher")
     except ImportError as e:
         raise HTTPException(status_code=status.HTTP_503_SERVICE_UNAVAILABLE,
                             detail=f"the viewer is not available in this installation (webui.launcher: {e})") from e
-    api_url = str(request.base_url).rstrip("/") + "/api"  # the contract's Base URL
-    url = launcher.start_viewer(session_id=str(session_id), session_dir=bout_dir(bout), api_url=api_url, token=token,
-                                role=user.role)
-    return {"url": str(url)}
+    assert bout.id is not None and user.id is not None
+    label = f"viewer:{bout.id}"
+
+    def mint() -> str:
+        with Session(engine, expire_on_commit=False) as db:
+            crud.revoke_tokens(db, user=user, label=label)  # the previous viewer's token, if any
+            return crud.issue_token(db, user=user, label=label)
+
+    try:
+        url = launcher.start_viewer(session_id=str(bout.id), session_dir=bout_dir(bout), api_url=api_url, token=mint,
+                                    role=user.role, owner=f"user:{user.id}")
+    except ValueError as e:
+        raise HTTPException(status_code=status.HTTP_503_SERVICE_UNAVAILABLE, detail=str(e)) from e
+    port = urlsplit(str(url)).port
+    if port is None:
+        raise HTTPException(status_code=status.HTTP_503_SERVICE_UNAVAILABLE, detail=f"viewer URL without a port: {url}")
+    return port
+
+
+@router.post("/sessions/{session_id}/viewer")
+def open_viewer(request: Request, db: SessionDep, user: CurrentUser, session_id: int) -> dict[str, Any]:
+    """Start (or reuse) the caller's viewer of this session; returns its URL under this server
+    (``/viewer/{id}/``), which a browser opens after signing in at ``/login``."""
+    bout = get_bout_or_404(db, session_id)
+    ensure_viewer(request.app.state.engine, user, bout, local_api_url(request))
+    return {"url": str(request.base_url).rstrip("/") + viewer_path(session_id)}
