@@ -137,10 +137,19 @@ def _selection(page) -> tuple[str, int, int, str]:  # noqa: ANN001
     return m.group(1), int(m.group(2)), int(m.group(3)), m.group(4)
 
 
+def _sign_in(page, served: Served, role: str) -> None:  # noqa: ANN001
+    """Fill the /login form the browser was sent to."""
+    page.wait_for_url(re.compile(r"/login"), timeout=30_000)
+    page.fill("#name", f"e2e-{role}")
+    page.fill("#token", served.tokens[role])
+    page.click("button[type=submit]")
+
+
 def _open_viewer(browser, served: Served, role: str):  # noqa: ANN001, ANN202
     ctx = browser.new_context(viewport={"width": 1400, "height": 900})
     page = ctx.new_page()
-    page.goto(f"{served.base}/?token={served.tokens[role]}")
+    page.goto(f"{served.base}/")  # not signed in: sent to /login, then back to the picker
+    _sign_in(page, served, role)
     button = page.locator(f"#v{served.session_id}")
     button.wait_for(timeout=30_000)
     with ctx.expect_page(timeout=120_000) as popup:
@@ -209,6 +218,38 @@ def test_review_swap_rerun_reload(served: Served) -> None:
             ctx.close()
         finally:
             browser.close()
+
+
+def test_viewer_needs_login_and_the_cookie_is_httponly(served: Served) -> None:
+    """A fresh browser gets the login page instead of the viewer; after signing in there it lands in
+    the viewer, whose websocket (through the app, at the page's own URL) connects."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            ctx = browser.new_context(viewport={"width": 1400, "height": 900})
+            page = ctx.new_page()
+            sockets: list[str] = []
+            page.on("websocket", lambda ws: sockets.append(ws.url))
+            page.goto(f"{served.base}/viewer/{served.session_id}/")
+            assert "/login?next=" in page.url and page.locator("canvas").count() == 0
+            assert sockets == []
+            page.screenshot(path=str(served.out_dir / "login.png"))
+            _sign_in(page, served, "annotator")
+            page.wait_for_url(f"{served.base}/viewer/{served.session_id}/", timeout=120_000)
+            page.wait_for_selector("canvas", timeout=60_000)
+            # GUI state came over the websocket (any frame: the annotator's viewer is shared with the test above)
+            page.get_by_text(re.compile(r"frame \d+ / \d+")).wait_for(timeout=60_000)
+            assert sockets == [f"ws://127.0.0.1:{served.base.rsplit(':', 1)[1]}/viewer/{served.session_id}"]
+            (cookie,) = [c for c in ctx.cookies() if c["name"] == "cornerman_session"]
+            assert cookie["httpOnly"] and cookie["sameSite"] == "Strict"
+            assert page.evaluate("document.cookie") == ""  # page scripts cannot read it
+            ctx.close()
+        finally:
+            browser.close()
+    log = served.log_path.read_text()
+    assert "WebSocket /viewer/" in log and not any(t in log for t in served.tokens.values())
 
 
 def test_coach_sees_no_editing_controls(served: Served) -> None:
