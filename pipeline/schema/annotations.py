@@ -37,14 +37,15 @@ class AssignIdentity:
 
 @dataclass(frozen=True)
 class SwapIdentities:
-    """From ``frame`` on, persons ``person_a`` and ``person_b`` swap identities in ``view``
-    (``view = ""`` = in every view)."""
+    """Over frames ``[frame, frame_end)`` persons ``person_a`` and ``person_b`` swap identities in
+    ``view`` (``view = ""`` = in every view; ``frame_end = None`` = to the end of the bout)."""
 
     frame: int
     person_a: int
     person_b: int
     view: str = ""
     kind: str = "swap_identities"
+    frame_end: int | None = None
 
 
 @dataclass(frozen=True)
@@ -144,61 +145,11 @@ def annotation_from_dict(d: dict) -> Annotation:
     return cls(**d)  # type: ignore[no-any-return]
 
 
-@dataclass(frozen=True)
-class AnnotationBounds:
-    """What a session's edits may refer to; ``None`` = not known yet (that part is not checked).
-
-    Fields:
-        n_frames: frames of the bout; frame fields must lie in ``[0, n_frames)``.
-        person_ids: the session's global person ids (the association's); the persons an
-            identity swap or a contact label names must be among them.
-        cameras: camera names; a ``view`` field must be one of them.
-    """
-
-    n_frames: int | None = None
-    person_ids: tuple[int, ...] | None = None
-    cameras: tuple[str, ...] | None = None
-
-
-_FRAME_FIELDS = ("frame", "frame_start", "frame_end")
-_PERSON_FIELDS: dict[str, tuple[str, ...]] = {
-    "swap_identities": ("person_a", "person_b"),
-    "label_contact": ("person_a", "person_b"),
-}
-"""Fields naming existing persons (``assign_identity`` may introduce a new person id)."""
-
-
-def check_annotation(a: Annotation, bounds: AnnotationBounds) -> None:
-    """``ValueError`` with the reason when ``a`` refers outside the bout ``bounds`` describes:
-    a frame < 0 or >= ``n_frames``, a span that ends before it starts, an unknown person (or a
-    swap of a person with itself), an unknown camera. The server's annotation routes answer
-    422 with this message; the one place these rules live."""
-    d = annotation_to_dict(a)
-    persons = _PERSON_FIELDS.get(a.kind, ())
-    for f in (*_FRAME_FIELDS, *persons):
-        if f in d and (not isinstance(d[f], int) or isinstance(d[f], bool)):
-            raise ValueError(f"{a.kind}: {f} must be an integer, got {d[f]!r}")
-    for f in _FRAME_FIELDS:
-        if f not in d:
-            continue
-        if d[f] < 0 or (bounds.n_frames is not None and d[f] >= bounds.n_frames):
-            span = f"[0, {bounds.n_frames - 1}]" if bounds.n_frames is not None else ">= 0"
-            raise ValueError(f"{a.kind}: {f} {d[f]} is outside the bout (frames {span})")
-    if "frame_start" in d and d["frame_start"] > d["frame_end"]:
-        raise ValueError(f"{a.kind}: frame_start {d['frame_start']} is after frame_end {d['frame_end']}")
-    for f in persons:
-        if d[f] < 0 or (bounds.person_ids is not None and d[f] not in bounds.person_ids):
-            known = f"known persons {list(bounds.person_ids)}" if bounds.person_ids is not None else "ids >= 0"
-            raise ValueError(f"{a.kind}: {f} {d[f]} is not a person of this session ({known})")
-    if a.kind == "swap_identities" and d["person_a"] == d["person_b"]:
-        raise ValueError(f"{a.kind}: person_a and person_b are both {d['person_a']}; a swap needs two persons")
-    view = d.get("view", "")
-    if view and bounds.cameras is not None and view not in bounds.cameras:
-        raise ValueError(f"{a.kind}: view {view!r} is not a camera of this session {list(bounds.cameras)}")
-
-
 def annotation_to_dict(a: Annotation) -> dict:
-    return asdict(a)
+    """The JSON form ``{"kind": ..., **fields}``; an optional field left at ``None`` is omitted, so
+    edits written before that field existed keep their JSON (and their hash)."""
+    optional = {f.name for f in fields(a) if f.default is None}
+    return {k: v for k, v in asdict(a).items() if not (k in optional and v is None)}
 
 
 def annotations_for(annotations: list[Annotation], stage: str) -> list[Annotation]:

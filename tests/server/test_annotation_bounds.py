@@ -8,13 +8,8 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from pipeline.schema.annotations import (
-    AnnotationBounds,
-    LabelContact,
-    MarkInvalid,
-    SwapIdentities,
-    check_annotation,
-)
+from pipeline.schema.annotation_checks import AnnotationBounds, check_annotation
+from pipeline.schema.annotations import LabelContact, MarkInvalid, SwapIdentities
 from server.core.config import Settings
 from tests.server.conftest import auth, make_bout, run_jobs
 

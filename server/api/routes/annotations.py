@@ -17,8 +17,10 @@ from server.api.deps import AnnotatorUser, CurrentUser, SessionDep, bout_dir, ge
 from server.models import (
     Annotation,
     AnnotationCreate,
+    AnnotationHistoryEntry,
     AnnotationPublic,
     AnnotationResult,
+    AnnotationState,
     AnnotationUpdate,
     Bout,
     Job,
@@ -36,15 +38,19 @@ def to_public(a: Annotation) -> AnnotationPublic:
     return AnnotationPublic(**a.model_dump(), active=a.superseded_by is None and a.kind != "undo")
 
 
-def _validated_payload(raw: dict[str, Any], bout: Bout) -> dict[str, Any]:
+def _validated_payload(db: Session, raw: dict[str, Any], bout: Bout) -> dict[str, Any]:
     """The edit as stored; 422 with the reason when it is malformed or refers outside the
-    session (frames, persons, cameras: ``pipeline.schema.annotations.check_annotation``)."""
+    session (frames, cameras, tracks and detections, persons: the athletes, the association's
+    and the named identities; ``pipeline.schema.annotation_checks.check_annotation``)."""
     from pipeline.runner.annotation_bounds import annotation_bounds
-    from pipeline.schema.annotations import annotation_from_dict, annotation_to_dict, check_annotation
+    from pipeline.schema.annotation_checks import check_annotation
+    from pipeline.schema.annotations import annotation_from_dict, annotation_to_dict
 
+    assert bout.id is not None
+    named = [i.person_id for i in crud.list_identities(db, bout_id=bout.id)]
     try:
         a = annotation_from_dict(raw)
-        check_annotation(a, annotation_bounds(bout_dir(bout)))
+        check_annotation(a, annotation_bounds(bout_dir(bout), extra_person_ids=named))
     except (TypeError, ValueError) as e:
         raise HTTPException(status_code=422, detail=f"invalid annotation: {e}") from e
     return annotation_to_dict(a)
@@ -94,10 +100,51 @@ def list_annotations(db: SessionDep, _: CurrentUser, session_id: int, include_su
     return [to_public(a) for a in crud.list_annotations(db, bout_id=session_id, include_superseded=include_superseded)]
 
 
+def _summary(row: Annotation, by_id: dict[int, Annotation], names: dict[int, str]) -> str:
+    from pipeline.schema.annotation_text import describe_annotation
+    from pipeline.schema.annotations import annotation_from_dict
+
+    if row.kind == "undo":
+        target = by_id.get(row.undoes) if row.undoes is not None else None
+        return f"undo of #{row.undoes}" + (f" ({_summary(target, by_id, names)})" if target is not None else "")
+    try:
+        return describe_annotation(annotation_from_dict(dict(row.payload)), names)
+    except (TypeError, ValueError) as e:  # a row stored before a field was renamed: still listed
+        return f"{row.kind} (unreadable: {e})"
+
+
+def history_entries(db: Session, bout_id: int) -> list[AnnotationHistoryEntry]:
+    """The session's edit history, newest first, with each edit's state and summary."""
+    rows = crud.annotation_history(db, bout_id=bout_id)
+    by_id = {r.id: r for r in rows if r.id is not None}
+    names = {i.person_id: i.name for i in crud.list_identities(db, bout_id=bout_id)}
+    out = []
+    for r in rows:
+        assert r.id is not None
+        nxt = by_id.get(r.superseded_by) if r.superseded_by is not None else None
+        state: AnnotationState = "undo" if r.kind == "undo" else "active" if nxt is None else "undone" if nxt.kind == "undo" else "replaced"
+        undone = nxt if state == "undone" else None
+        out.append(AnnotationHistoryEntry(
+            id=r.id, kind=r.kind, payload=r.payload, author=r.author, created_at=r.created_at,
+            summary=_summary(r, by_id, names), state=state, active=state == "active", superseded_by=r.superseded_by,
+            undoes=r.undoes, undone_by=undone.author if undone else None, undone_at=undone.created_at if undone else None,
+        ))  # fmt: skip
+    return out
+
+
+@router.get("/sessions/{session_id}/annotations/history", response_model=list[AnnotationHistoryEntry])
+def annotation_history(db: SessionDep, _: CurrentUser, session_id: int) -> Any:
+    """Every edit of the session, newest first: author, time, kind, a one-line summary and its state
+    (active, undone, replaced, or an undo marker). Any active entry can be undone with
+    ``POST /annotations/{id}/undo`` (not only the newest), an undone one re-applied with ``.../redo``."""
+    get_bout_or_404(db, session_id)
+    return history_entries(db, session_id)
+
+
 @router.post("/sessions/{session_id}/annotations", response_model=AnnotationResult, status_code=status.HTTP_201_CREATED)
 def create_annotation(db: SessionDep, user: AnnotatorUser, session_id: int, body: AnnotationCreate) -> Any:
     bout = get_bout_or_404(db, session_id)
-    payload = _validated_payload(body.annotation, bout)
+    payload = _validated_payload(db, body.annotation, bout)
     row = crud.add_annotation(db, bout_id=session_id, payload=payload, author=user.name)
     return _after_change(db, bout, payload["kind"], body.rerun, user, row, f"annotation #{row.id}")
 
@@ -112,7 +159,7 @@ def replace_annotation(db: SessionDep, user: AnnotatorUser, annotation_id: int, 
     """Replace an active edit: the new row supersedes it (the old one stays in the history)."""
     old = _annotation_or_404(db, annotation_id)
     bout = get_bout_or_404(db, old.session_id)
-    payload = _validated_payload(body.annotation, bout)
+    payload = _validated_payload(db, body.annotation, bout)
     try:
         row = crud.add_annotation(db, bout_id=old.session_id, payload=payload, author=user.name, supersedes=old)
     except ValueError as e:
