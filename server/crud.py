@@ -347,6 +347,12 @@ def list_annotations(session: Session, *, bout_id: int, include_superseded: bool
     return session.exec(q.order_by(col(Annotation.id))).all()
 
 
+def annotation_history(session: Session, *, bout_id: int) -> Sequence[Annotation]:
+    """Every annotation row of the session (edits, replaced and undone ones, undo markers), newest first."""
+    q = select(Annotation).where(Annotation.session_id == bout_id)
+    return session.exec(q.order_by(col(Annotation.id).desc())).all()
+
+
 def active_payloads(session: Session, *, bout_id: int) -> list[dict[str, Any]]:
     """The edits in force, in the order they were made (what ``annotations.json`` holds)."""
     return [dict(a.payload) for a in list_annotations(session, bout_id=bout_id)]

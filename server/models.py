@@ -229,6 +229,27 @@ class AnnotationPublic(AnnotationBase):
     active: bool
 
 
+AnnotationState = Literal["active", "undone", "replaced", "undo"]
+
+
+class AnnotationHistoryEntry(SQLModel):
+    """One row of a session's edit history (``GET /sessions/{id}/annotations/history``)."""
+
+    id: int
+    kind: str = Field(description="The edit kind, or 'undo' for the marker row an undo writes.")
+    payload: dict[str, Any]
+    author: str
+    created_at: datetime
+    summary: str = Field(description="One line of text: what the edit does, with the persons' names.")
+    state: AnnotationState = Field(description="active (in force), undone, replaced (by the edit in "
+                                   "superseded_by), or undo (an undo marker row).")
+    active: bool
+    superseded_by: int | None
+    undoes: int | None
+    undone_by: str | None = Field(default=None, description="Who undid this edit (state 'undone').")
+    undone_at: datetime | None = Field(default=None, description="When this edit was undone (state 'undone').")
+
+
 class AnnotationResult(SQLModel):
     annotation: AnnotationPublic
     job: JobPublic | None

@@ -163,7 +163,9 @@ def _events() -> dict[str, Any]:
     })  # fmt: skip
 
 
-_JSON_TYPES: dict[Any, dict[str, Any]] = {str: _STR, int: {"type": "integer"}, float: _NUM}
+_JSON_TYPES: dict[Any, dict[str, Any]] = {
+    str: _STR, int: {"type": "integer"}, float: _NUM, int | None: {"type": "integer"},  # None is omitted from the JSON
+}
 
 
 def edit_schema() -> dict[str, Any]:

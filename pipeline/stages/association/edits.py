@@ -22,8 +22,9 @@ def apply_identity_edits(
     - ``AssignIdentity(view, track, frame_start, frame_end, person)``: those detections get
       ``person`` (confidence 1); another detection of that view and frame that had
       ``person`` loses it (-1), so one person never has two detections in one image.
-    - ``SwapIdentities(frame, a, b, view)``: from ``frame`` on, ``a`` and ``b`` trade their
-      detections in ``view`` (``""`` = every view).
+    - ``SwapIdentities(frame, a, b, view, frame_end)``: over frames ``[frame, frame_end)``
+      (``frame_end=None``: to the end), ``a`` and ``b`` trade their detections in ``view``
+      (``""`` = every view).
     Other annotation kinds are not consumed by association and are ignored.
     Raises ``ValueError`` for unknown camera names and malformed edits.
     """
@@ -47,7 +48,11 @@ def apply_identity_edits(
         elif isinstance(e, SwapIdentities):
             if e.person_a < 0 or e.person_b < 0:
                 raise ValueError(f"invalid edit {e}: persons must be >= 0")
+            if e.frame_end is not None and e.frame_end <= e.frame:
+                raise ValueError(f"invalid edit {e}: frame_end must be after frame")
             sel = tracks.frame >= e.frame
+            if e.frame_end is not None:
+                sel &= tracks.frame < e.frame_end
             if e.view:
                 sel &= tracks.view == _view_index(camera_names, e.view, e)
             a = sel & (pod == e.person_a)
