@@ -61,28 +61,29 @@ def list_sessions(db: SessionDep, _: CurrentUser, status_: Annotated[str | None,
     return crud.list_bouts(db, status=status_, limit=limit, offset=offset)
 
 
-@router.post("", response_model=BoutPublic, status_code=status.HTTP_201_CREATED)
-def upload_session(
+def create_uploaded_session(
     db: SessionDep,
-    settings: SettingsDep,
-    user: AdminUser,
-    name: Annotated[str, Form(min_length=1, max_length=200)],
-    calibration: Annotated[UploadFile, File(description="Calibration file (TOML, .qca.txt, Campus/Shelf JSON)")],
-    videos: Annotated[list[UploadFile] | None, File(description="One video per camera, named <camera>.<ext>")] = None,
-    keypoints: Annotated[list[UploadFile] | None, File(description="2D keypoints per camera, named <camera>.json")] = None,
-    tracks: Annotated[UploadFile | None, File(description="A Tracks2D npz (synthetic bouts)")] = None,
-    keypoint_format: Annotated[str, Form(pattern="^(openpose|coco)$")] = "openpose",
-    fps: Annotated[float, Form(ge=0)] = 0.0,
-    athletes: Annotated[str, Form(description="Comma-separated athlete names, by person id")] = "Red,Blue",
-    stages: Annotated[str, Form(description="Comma-separated stages to run (default: all)")] = "",
-    date: Annotated[str, Form(max_length=32)] = "",
-    auto_rerun: Annotated[bool, Form()] = True,
-) -> Any:
-    """Create a session from uploaded files (admin). The request body is limited to
-    ``CORNERMAN_MAX_UPLOAD_MB`` (413 beyond). File names must be plain names (no paths)."""
+    settings: Settings,
+    *,
+    author: str,
+    name: str,
+    calibration: UploadFile,
+    videos: list[UploadFile],
+    keypoints: list[UploadFile],
+    tracks: UploadFile | None,
+    keypoint_format: str = "openpose",
+    fps: float = 0.0,
+    athletes: str = "Red,Blue",
+    stages: str = "",
+    date: str = "",
+    auto_rerun: bool = True,
+) -> Bout:
+    """A new session from uploaded files: they are copied into ``inputs/`` of a new session folder
+    and ``session.json`` is written (the upload route and the picker's form). ``ValueError`` for
+    unsafe or duplicate file names, no data source besides the calibration, unknown stages or a
+    calibration that does not load; nothing is left behind then."""
     from pipeline.schema.session import SessionConfig
 
-    videos, keypoints = videos or [], keypoints or []
     uploads = [("calibration", calibration)] + [("videos", f) for f in videos] + [("keypoints", f) for f in keypoints]
     if tracks is not None:
         uploads.append(("tracks", tracks))
@@ -123,8 +124,47 @@ def upload_session(
         shutil.rmtree(dest, ignore_errors=True)
         raise
     bout = Bout(name=name, date=date, auto_rerun=auto_rerun, folder=str(dest), n_cameras=meta["n_cameras"],
-                cameras=meta["cameras"], fps=meta["fps"], athletes=meta["athletes"], created_by=user.name)
+                cameras=meta["cameras"], fps=meta["fps"], athletes=meta["athletes"], created_by=author)
     return crud.create_bout(db, bout=bout)
+
+
+def remove_session(db: SessionDep, settings: Settings, bout: Bout) -> None:
+    """Delete a session, its jobs and annotations, and its folder when the server created it
+    (under the sessions folder); 409 while one of its jobs runs."""
+    assert bout.id is not None
+    if crud.list_jobs(db, session_id=bout.id, status="running"):
+        raise HTTPException(status_code=status.HTTP_409_CONFLICT,
+                            detail=f"session {bout.id} has a running job; cancel it first")
+    folder = bout_dir(bout).resolve()
+    crud.delete_bout(db, bout=bout)
+    if folder.is_relative_to(settings.sessions_dir.resolve()) and folder.exists():
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+@router.post("", response_model=BoutPublic, status_code=status.HTTP_201_CREATED)
+def upload_session(
+    db: SessionDep,
+    settings: SettingsDep,
+    user: AdminUser,
+    name: Annotated[str, Form(min_length=1, max_length=200)],
+    calibration: Annotated[UploadFile, File(description="Calibration file (TOML, .qca.txt, Campus/Shelf JSON)")],
+    videos: Annotated[list[UploadFile] | None, File(description="One video per camera, named <camera>.<ext>")] = None,
+    keypoints: Annotated[list[UploadFile] | None, File(description="2D keypoints per camera, named <camera>.json")] = None,
+    tracks: Annotated[UploadFile | None, File(description="A Tracks2D npz (synthetic bouts)")] = None,
+    keypoint_format: Annotated[str, Form(pattern="^(openpose|coco)$")] = "openpose",
+    fps: Annotated[float, Form(ge=0)] = 0.0,
+    athletes: Annotated[str, Form(description="Comma-separated athlete names, by person id")] = "Red,Blue",
+    stages: Annotated[str, Form(description="Comma-separated stages to run (default: all)")] = "",
+    date: Annotated[str, Form(max_length=32)] = "",
+    auto_rerun: Annotated[bool, Form()] = True,
+) -> Any:
+    """Create a session from uploaded files (admin). The request body is limited to
+    ``CORNERMAN_MAX_UPLOAD_MB`` (413 beyond). File names must be plain names (no paths)."""
+    return create_uploaded_session(
+        db, settings, author=user.name, name=name, calibration=calibration, videos=videos or [],
+        keypoints=keypoints or [], tracks=tracks, keypoint_format=keypoint_format, fps=fps, athletes=athletes,
+        stages=stages, date=date, auto_rerun=auto_rerun,
+    )  # fmt: skip
 
 
 @router.post("/from-folder", response_model=BoutPublic, status_code=status.HTTP_201_CREATED)
@@ -148,14 +188,7 @@ def update_session(db: SessionDep, _: AdminUser, session_id: int, body: BoutUpda
 @router.delete("/{session_id}", status_code=status.HTTP_204_NO_CONTENT)
 def delete_session(db: SessionDep, settings: SettingsDep, _: AdminUser, session_id: int) -> None:
     """Delete a session, its jobs and annotations, and its server folder (409 while a job runs)."""
-    bout = get_bout_or_404(db, session_id)
-    if any(j.status == "running" for j in crud.list_jobs(db, session_id=session_id, status="running")):
-        raise HTTPException(status_code=status.HTTP_409_CONFLICT,
-                            detail=f"session {session_id} has a running job; cancel it first")
-    folder = bout_dir(bout).resolve()
-    crud.delete_bout(db, bout=bout)
-    if folder.is_relative_to(settings.sessions_dir.resolve()) and folder.exists():
-        shutil.rmtree(folder, ignore_errors=True)
+    remove_session(db, settings, get_bout_or_404(db, session_id))
 
 
 @router.get("/{session_id}/status")
