@@ -1,54 +1,70 @@
 """Per-frame diagnostics for the timeline and the plots (pure numpy).
 
 Problem frames are where an analyst should look first: low identity confidence
-(association), high reprojection error and deep inter-person penetration, as the
-evaluate stage flagged them (``pipeline.stages.evaluate.problem_flags``).
+(association), high reprojection error, deep inter-person penetration, and a physics
+result held up by a residual root force or over human joint torques, as the evaluate
+stage flagged them (``pipeline.stages.evaluate.problem_flags``, kinds ``FLAG_KINDS``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from pipeline.schema.keypoints3d import Keypoints3D
+from pipeline.stages.evaluate import FLAG_KINDS, EvaluateConfig
 from webui.scene.session_data import SessionData
 
 
 @dataclass(frozen=True)
 class FrameProblems:
-    """(frames,) bool flags per kind of problem."""
+    """(frames, kinds) bool flags on the viewer's timeline, one column per ``FLAG_KINDS`` entry."""
 
-    low_id_confidence: np.ndarray
-    high_reproj_error: np.ndarray
-    high_penetration: np.ndarray
+    flags: np.ndarray
+
+    def __post_init__(self) -> None:
+        if self.flags.ndim != 2 or self.flags.shape[1] != len(FLAG_KINDS):
+            raise ValueError(f"FrameProblems: flags of shape {self.flags.shape}, expected (frames, {len(FLAG_KINDS)})")
+
+    @classmethod
+    def none(cls, n_frames: int) -> FrameProblems:
+        """Nothing flagged on ``n_frames`` frames."""
+        return cls(np.zeros((n_frames, len(FLAG_KINDS)), dtype=bool))
+
+    def of(self, key: str) -> np.ndarray:
+        """(frames,) flags of kind ``key`` (a ``FlagKind.key``); ``ValueError`` for an unknown kind."""
+        keys = [k.key for k in FLAG_KINDS]
+        if key not in keys:
+            raise ValueError(f"unknown problem kind {key!r}; known: {keys}")
+        return self.flags[:, keys.index(key)]
 
     @property
     def any(self) -> np.ndarray:
-        return self.low_id_confidence | self.high_reproj_error | self.high_penetration
+        return np.asarray(self.flags.any(axis=1))
 
     @property
     def n_frames(self) -> int:
-        return int(self.low_id_confidence.shape[0])
+        return int(self.flags.shape[0])
 
     def kinds_at(self, frame: int) -> list[str]:
-        out = []
-        if self.low_id_confidence[frame]:
-            out.append("identity confidence low")
-        if self.high_reproj_error[frame]:
-            out.append("reprojection error high")
-        if self.high_penetration[frame]:
-            out.append("penetration high")
-        return out
+        """Labels of the kinds flagged at ``frame``, in ``FLAG_KINDS`` order."""
+        return [k.label for k, on in zip(FLAG_KINDS, self.flags[frame], strict=True) if on]
 
-    def next_after(self, frame: int) -> int | None:
+    def counts(self) -> dict[str, int]:
+        """Flagged frames per kind, by ``FlagKind.key``."""
+        return {k.key: int(n) for k, n in zip(FLAG_KINDS, self.flags.sum(axis=0), strict=True)}
+
+    def next_after(self, frame: int, kind: str | None = None) -> int | None:
         """First flagged frame strictly after ``frame``, wrapping around; None when nothing is flagged.
 
-        Consecutive flagged frames count as one problem: the search skips to the end of the
-        run containing ``frame`` first, so repeated clicks visit each problem once.
+        ``kind``: a ``FlagKind.key`` to visit only that kind, None for any. Consecutive flagged
+        frames count as one problem: the search skips to the end of the run containing
+        ``frame`` first, so repeated clicks visit each problem once.
         """
-        flags = self.any
+        flags = self.any if kind is None else self.of(kind)
         if not flags.any():
             return None
         n = flags.shape[0]
@@ -84,13 +100,30 @@ def compute_problems(data: SessionData) -> FrameProblems:
     """The evaluate stage's per-frame flags (``evaluate/problems.npz``) on the viewer's frames;
     none while that stage has not run. One definition of a problem: ``pipeline.stages.evaluate``."""
     n = data.n_frames
-    out = [np.zeros(n, dtype=bool) for _ in range(3)]
+    out = FrameProblems.none(n)
     pf = data.problems
-    if pf is not None and pf.flags.shape == (pf.frame_indices.shape[0], 3):
+    if pf is not None:
         keep = (pf.frame_indices >= 0) & (pf.frame_indices < n)
-        for k in range(3):
-            out[k][pf.frame_indices[keep]] = pf.flags[keep, k]
-    return FrameProblems(*out)
+        for i, kind in enumerate(FLAG_KINDS):
+            col = pf.column(kind.key)  # None in a file written before the kind existed
+            if col is not None:
+                out.flags[pf.frame_indices[keep], i] = col[keep]
+    return out
+
+
+def residual_series(data: SessionData) -> tuple[np.ndarray, float] | None:
+    """(frames,) residual root force of the physics result, worst athlete, in body weights
+    (NaN where the evaluate stage has no value), and the flag threshold; None when physics
+    did not run or the evaluate stage has not reported it."""
+    pf = data.problems
+    if data.physics is None or pf is None or pf.residual_frac_bw.shape != pf.frame_indices.shape:
+        return None
+    n = data.n_frames
+    y = np.full(n, np.nan)
+    keep = (pf.frame_indices >= 0) & (pf.frame_indices < n)
+    y[pf.frame_indices[keep]] = pf.residual_frac_bw[keep]
+    cap = data.metrics.get("physics_residual_high_frac_bw")
+    return y, float(cap) if isinstance(cap, int | float) else EvaluateConfig().residual_high_frac_bw
 
 
 @dataclass(frozen=True)
@@ -104,6 +137,9 @@ class PlotSeries:
         wrist_speed_mps: (frames, persons) max of both wrists' speeds, m/s.
         distance_m: (frames,) distance between the first two persons' hip centres, m.
         reproj_err_px: (frames, persons) mean reprojection error (triangulation), px.
+        residual_frac_bw: (frames,) physics residual root force, worst athlete, body
+            weights (``residual_series``); None when physics did not run.
+        residual_cap_frac_bw: the evaluate stage's flag threshold for it, body weights.
     """
 
     frames: np.ndarray
@@ -112,6 +148,8 @@ class PlotSeries:
     wrist_speed_mps: np.ndarray
     distance_m: np.ndarray
     reproj_err_px: np.ndarray
+    residual_frac_bw: np.ndarray | None = None
+    residual_cap_frac_bw: float = EvaluateConfig().residual_high_frac_bw
 
 
 def _dense(kp: Keypoints3D, n_frames: int, joint: str) -> np.ndarray:
@@ -154,7 +192,9 @@ def compute_series(data: SessionData, source: str) -> PlotSeries | None:
             if hit.size:
                 reproj[:, i] = e[:, hit[0]]
     frames = np.arange(n)
-    return PlotSeries(frames, frames / fps, kp.person_ids.copy(), wrist, dist, reproj)
+    res = residual_series(data)
+    out = PlotSeries(frames, frames / fps, kp.person_ids.copy(), wrist, dist, reproj)
+    return out if res is None else dataclasses.replace(out, residual_frac_bw=res[0], residual_cap_frac_bw=res[1])
 
 
 def fill_gaps(y: np.ndarray) -> np.ndarray:

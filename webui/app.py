@@ -323,7 +323,7 @@ class ViewerApp:
 
         @tl.next_problem.on_click
         def _(_: Any) -> None:
-            nxt = self.problems.next_after(self.frame)
+            nxt = self.problems.next_after(self.frame, tl.kind)
             if nxt is not None:
                 tl.frame.value = nxt  # type: ignore[misc]
 

@@ -31,6 +31,7 @@ from pipeline.bench.effort import EFFORT_COLUMNS, session_effort_columns
 from pipeline.evaluate.consistency import MIN_KEYPOINT_CONF, consistency
 from pipeline.schema.session import SessionConfig
 from pipeline.schema.sources import RESULT_ARTIFACTS
+from pipeline.stages.evaluate import FLAG_KINDS, ProblemFlags
 
 log = logging.getLogger(__name__)
 
@@ -40,9 +41,6 @@ SESSION_NAME = "pose2sim_multiperson (bench footage)"
 
 OUTPUTS: tuple[tuple[str, str, str], ...] = tuple((name, st, art) for name, (st, art) in RESULT_ARTIFACTS.items())
 """(row name, stage, artifact) of every 3D output scored, in pipeline order (``pipeline.schema.sources``)."""
-
-FLAG_KINDS: tuple[str, ...] = ("identity_low", "reprojection_high", "penetration_high")
-"""The columns of the evaluate stage's ``problems.npz`` ``flags`` (``ProblemFlags``)."""
 
 FIXED_SESSION_KEYS = frozenset({"name", "source", "calibration", "videos", "keypoints", "tracks"})
 """``SessionConfig`` fields the bench sets itself (they define the footage)."""
@@ -188,16 +186,18 @@ def _session_row(store: Any, reports: list[Any], work_dir: Path) -> dict[str, An
         if m is not None and key in m.metrics:
             row[name] = m.metrics[key]
     if store.has("evaluate", "problems.npz"):
-        with np.load(store.path("evaluate", "problems.npz"), allow_pickle=False) as z:
-            flags = np.asarray(z["flags"], dtype=bool)
-        if flags.ndim != 2 or flags.shape[1] != len(FLAG_KINDS):
-            raise ValueError(
-                f"evaluate/problems.npz: flags of shape {flags.shape}, expected (frames, {len(FLAG_KINDS)})"
-            )
-        row["flag_frames"] = int(flags.shape[0])
-        for k, kind in enumerate(FLAG_KINDS):
-            row[f"flag_{kind}_pct"] = 100.0 * float(flags[:, k].mean()) if flags.size else float("nan")
-        row["flag_any_pct"] = 100.0 * float(flags.any(axis=1).mean()) if flags.size else float("nan")
+        path = store.path("evaluate", "problems.npz")
+        with np.load(path, allow_pickle=False) as z:
+            try:
+                pf = ProblemFlags(**{k: z[k] for k in z.files})
+            except (TypeError, ValueError) as e:
+                raise ValueError(f"{path}: not the evaluate stage's problem flags ({e}); re-run evaluate") from e
+        n = int(pf.frame_indices.shape[0])
+        row["flag_frames"] = n
+        for kind in FLAG_KINDS:
+            col = pf.column(kind.key)  # None in a file written before the kind existed
+            row[f"flag_{kind.key}_pct"] = 100.0 * float(col.mean()) if col is not None and n else float("nan")
+        row["flag_any_pct"] = 100.0 * float(pf.flags.any(axis=1).mean()) if n else float("nan")
     return row
 
 
@@ -387,10 +387,11 @@ def print_table(rows: list[dict]) -> None:
         ("tri_all_views_median_px", "tri all med px"),
         ("fit_all_views_median_px", "fit all med px"),
     )
-    for head in (*FLAG_KINDS, "any", *(h for _, h in extra)):
+    keys = (*(k.key for k in FLAG_KINDS), "any")
+    for head in (*keys, *(h for _, h in extra)):
         flags.add_column(head, justify="right")
     flags.add_row(
-        *[_f(session.get(f"flag_{kind}_pct"), "{:.0f}") for kind in (*FLAG_KINDS, "any")],
+        *[_f(session.get(f"flag_{key}_pct"), "{:.0f}") for key in keys],
         *[_f(session.get(k)) for k, _ in extra],
     )
     console.print(flags)

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from pipeline.stages.evaluate import FLAG_KINDS
+
 Row = Mapping[str, Any]
 
 
@@ -169,9 +171,7 @@ def _footage(rows: Sequence[Row]) -> tuple[list[Row], list[str]]:
     notes = []
     if session is not None and "flag_any_pct" in session:
         kinds = ", ".join(
-            f"{label} {_value(session.get(f'flag_{k}_pct'), '{:.0f}')} %"
-            for k, label in (("identity_low", "identity"), ("reprojection_high", "reprojection"),
-                             ("penetration_high", "penetration"))
+            f"{k.label} {_value(session.get(f'flag_{k.key}_pct'), '{:.0f}')} %" for k in FLAG_KINDS
         )
         notes.append(
             f"Frames flagged by the evaluate stage: {_value(session['flag_any_pct'], '{:.0f}')} % "

@@ -2,7 +2,7 @@
 reaction force against body weight, and the residual root force split into its parts.
 
 The limits are peak voluntary joint torques of trained adults, per kg of body mass
-(rationale and sources in ``docs/design/physics_effort.md``). A joint's torque is the
+(rationale and sources in ``docs/design/physics-effort.md``). A joint's torque is the
 norm over its hinge actuators (a ball joint is three hinges), compared with its group's
 limit; twist hinges (forearm pronation, tibial rotation) have their own small limits.
 """
@@ -60,44 +60,90 @@ def group_of_joint(joint: str) -> str:
     )
 
 
-def torque_limit_report(
-    torque_nm: np.ndarray, actuator_names: list[str], person_ids: list[int], mass_kg: np.ndarray
-) -> dict[str, float]:
-    """Share of (frame, athlete) samples whose joint torque exceeds the human limit, in %.
+def joint_torque_ratios(
+    torque_nm: np.ndarray, actuator_names: list[str] | tuple[str, ...], person_ids: list[int], mass_kg: np.ndarray
+) -> tuple[np.ndarray, list[tuple[int, str]]]:
+    """(frames, joints) torque over its human limit for every joint of every athlete (>= 0;
+    above 1 = over the limit), and the (person id, joint name) of each column.
 
-    ``torque_nm``: (frames, actuators) applied actuator forces; ``actuator_names`` their
+    ``torque_nm``: (frames, actuators) applied actuator forces, N·m; ``actuator_names`` their
     MuJoCo names (``p{pid}_…``; residual ``_res_`` actuators are ignored); ``mass_kg``:
-    (persons,) body masses. Returns ``torque_over_pct_<group>`` per group, ``torque_over_pct_any``
-    (frames where any joint of an athlete is over) and ``torque_peak_ratio_max`` (largest
-    torque / limit).
+    (persons,) body masses, kg, in the order of ``person_ids``. ``ValueError`` when the
+    shapes disagree, a mass is not positive or a joint has no limit group.
     """
+    torque_nm = np.asarray(torque_nm, dtype=float)
     if torque_nm.ndim != 2 or torque_nm.shape[1] != len(actuator_names):
         raise ValueError(f"torques {torque_nm.shape} do not match {len(actuator_names)} actuator names")
-    if len(mass_kg) != len(person_ids) or np.any(np.asarray(mass_kg) <= 0):
-        raise ValueError(f"need one positive mass per athlete, got {list(mass_kg)} for {person_ids}")
-    F = torque_nm.shape[0]
-    over_any = np.zeros((F, len(person_ids)), dtype=bool)
-    over_group: dict[str, list[np.ndarray]] = {g: [] for g in HUMAN_PEAK_TORQUE_NM_PER_KG}
-    peak = 0.0
+    mass_kg = np.asarray(mass_kg, dtype=float)
+    if mass_kg.shape != (len(person_ids),) or np.any(mass_kg <= 0):
+        raise ValueError(f"need one positive mass per athlete, got {mass_kg.tolist()} for {list(person_ids)}")
+    cols: list[np.ndarray] = []
+    keys: list[tuple[int, str]] = []
     for i, pid in enumerate(person_ids):
         joints: dict[str, list[int]] = {}
         for a, name in enumerate(actuator_names):
             if name.startswith(f"p{pid}_") and "_res_" not in name:
                 joints.setdefault(joint_of_actuator(name), []).append(a)
         for joint, acts in joints.items():
-            group = group_of_joint(joint)
-            limit = HUMAN_PEAK_TORQUE_NM_PER_KG[group] * float(mass_kg[i])
-            mag = np.linalg.norm(torque_nm[:, acts], axis=1)
-            over = mag > limit
-            over_group[group].append(over)
-            over_any[:, i] |= over
-            peak = max(peak, float(mag.max(initial=0.0)) / limit)
+            limit = HUMAN_PEAK_TORQUE_NM_PER_KG[group_of_joint(joint)] * float(mass_kg[i])
+            cols.append(np.linalg.norm(torque_nm[:, acts], axis=1) / limit)
+            keys.append((int(pid), joint))
+    ratios = np.stack(cols, axis=1) if cols else np.zeros((torque_nm.shape[0], 0))
+    return ratios, keys
+
+
+def torque_ratio_per_frame(
+    torque_nm: np.ndarray, actuator_names: list[str] | tuple[str, ...], person_ids: list[int], mass_kg: np.ndarray
+) -> np.ndarray:
+    """(frames,) largest joint torque over its human limit, worst athlete and joint (>= 0;
+    0 without joint actuators). Arguments as in ``joint_torque_ratios``."""
+    ratios, _ = joint_torque_ratios(torque_nm, actuator_names, person_ids, mass_kg)
+    return ratios.max(axis=1, initial=0.0)
+
+
+def torque_limit_report(
+    torque_nm: np.ndarray, actuator_names: list[str], person_ids: list[int], mass_kg: np.ndarray
+) -> dict[str, float]:
+    """Share of (frame, athlete) samples whose joint torque exceeds the human limit, in %.
+
+    Arguments as in ``joint_torque_ratios``. Returns ``torque_over_pct_<group>`` per group,
+    ``torque_over_pct_any`` (frames where any joint of an athlete is over) and
+    ``torque_peak_ratio_max`` (largest torque / limit).
+    """
+    ratios, keys = joint_torque_ratios(torque_nm, actuator_names, person_ids, mass_kg)
+    over = ratios > 1.0
+    over_any = np.zeros((ratios.shape[0], len(person_ids)), dtype=bool)
+    over_group: dict[str, list[np.ndarray]] = {g: [] for g in HUMAN_PEAK_TORQUE_NM_PER_KG}
+    for c, (pid, joint) in enumerate(keys):
+        over_group[group_of_joint(joint)].append(over[:, c])
+        over_any[:, list(person_ids).index(pid)] |= over[:, c]
     out = {
         f"torque_over_pct_{g}": 100.0 * float(np.mean(np.concatenate(v))) for g, v in over_group.items() if v
     }
     out["torque_over_pct_any"] = 100.0 * float(over_any.mean()) if over_any.size else 0.0
-    out["torque_peak_ratio_max"] = peak
+    out["torque_peak_ratio_max"] = float(ratios.max(initial=0.0))
     return out
+
+
+def residual_frac_bw(residual_wrench: np.ndarray, mass_kg: np.ndarray) -> np.ndarray:
+    """(frames, persons) magnitude of the residual root force in body weights (>= 0).
+
+    ``residual_wrench``: (frames, persons, 6) residual root force (N, first three) and torque;
+    ``mass_kg``: (persons,) body masses, kg (> 0). ``ValueError`` on mismatched shapes.
+    """
+    residual_wrench = np.asarray(residual_wrench, dtype=float)
+    mass_kg = np.asarray(mass_kg, dtype=float)
+    if residual_wrench.ndim != 3 or residual_wrench.shape[1:] != (mass_kg.shape[0], 6) or np.any(mass_kg <= 0):
+        raise ValueError(
+            f"residual wrench {residual_wrench.shape} needs (frames, {mass_kg.shape[0]}, 6) and positive masses, "
+            f"got masses {mass_kg.tolist()}"
+        )
+    return np.linalg.norm(residual_wrench[..., :3], axis=-1) / (mass_kg[None, :] * GRAVITY)
+
+
+def residual_per_frame(residual_wrench: np.ndarray, mass_kg: np.ndarray) -> np.ndarray:
+    """(frames,) residual root force of the worst athlete, in body weights (``residual_frac_bw``)."""
+    return residual_frac_bw(residual_wrench, mass_kg).max(axis=1, initial=0.0)
 
 
 def force_balance_report(
@@ -112,12 +158,13 @@ def force_balance_report(
     """
     bw = np.asarray(mass_kg, dtype=float)[None, :] * GRAVITY
     res = residual_wrench[..., :3]
+    res_bw = residual_frac_bw(residual_wrench, mass_kg)
     return {
         "grf_z_mean_frac_bw": float(np.mean(grf_n[..., 2] / bw)),
         "grf_z_max_frac_bw": float(np.max(grf_n[..., 2] / bw, initial=0.0)),
         "grf_airborne_pct": 100.0 * float(np.mean(grf_n[..., 2] < 0.05 * bw)),
         "residual_z_mean_frac_bw": float(np.mean(res[..., 2] / bw)),
         "residual_xy_mean_frac_bw": float(np.mean(np.linalg.norm(res[..., :2], axis=-1) / bw)),
-        "residual_mean_frac_bw": float(np.mean(np.linalg.norm(res, axis=-1) / bw)),
-        "residual_max_frac_bw": float(np.max(np.linalg.norm(res, axis=-1) / bw, initial=0.0)),
+        "residual_mean_frac_bw": float(np.mean(res_bw)),
+        "residual_max_frac_bw": float(np.max(res_bw, initial=0.0)),
     }

@@ -73,7 +73,8 @@ def test_footage_table_joins_median_and_p95_and_notes_the_flags() -> None:
         {"kind": "output", "output": "physics", "reproj_median_px": 15.47, "reproj_p95_px": 146.9,
          "residual_force_mean_frac_bw": 1.2836},
         {"kind": "session", "output": "session", "flag_frames": 100, "flag_any_pct": 57.0, "flag_identity_low_pct": 12.0,
-         "flag_reprojection_high_pct": 57.0, "flag_penetration_high_pct": 0.0},
+         "flag_reprojection_high_pct": 57.0, "flag_penetration_high_pct": 0.0, "flag_residual_high_pct": 3.0,
+         "flag_torque_high_pct": 41.0},
         {"kind": "target", "output": "target", "target": "fit bone-length std", "value": 7.7, "limit": 10.0, "ok": True},
     ]
     md = render("footage", rows)
@@ -82,7 +83,10 @@ def test_footage_table_joins_median_and_p95_and_notes_the_flags() -> None:
     assert fit[head.index("reproj. median / p95 px")] == "10.7 / 149"
     assert phys[head.index("residual force mean / max bw")] == "1.28 / –"
     assert fit[head.index("residual force mean / max bw")] == ""
-    assert "57 % of 100 (identity 12 %, reprojection 57 %, penetration 0 %)" in md
+    assert (
+        "57 % of 100 (identity confidence low 12 %, reprojection error high 57 %, penetration high 0 %, "
+        "residual root force high 3 %, joint torque over human limit 41 %)"
+    ) in md
 
 
 def test_fit_and_triangulation_tables() -> None:

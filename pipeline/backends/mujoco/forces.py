@@ -69,3 +69,10 @@ def body_masses_kg(mjcf: str, person_ids: list[int]) -> np.ndarray:
     m = load_model(mjcf)
     lay = scene_layout(m, person_ids)
     return np.array([float(m.body_subtreemass[p.root_body]) for p in lay.persons])
+
+
+def actuator_names(mjcf: str) -> list[str]:
+    """(actuators,) MuJoCo names of the scene's actuators, the columns of ``PhysicsResult.ctrl``
+    and ``joint_torque_nm`` (``p{pid}_<joint>[_axis]``, residual servos ``p{pid}_res_*``)."""
+    m = load_model(mjcf)
+    return [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or "" for a in range(m.nu)]

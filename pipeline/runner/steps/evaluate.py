@@ -15,11 +15,11 @@ from pipeline.schema.association import Association
 from pipeline.schema.base import load_npz
 from pipeline.schema.detections import Tracks2D
 from pipeline.schema.keypoints3d import Keypoints3D
+from pipeline.schema.results import PhysicsResult
 from pipeline.schema.sources import RESULT_ARTIFACTS
-from pipeline.stages.evaluate import EvaluateConfig, EvaluateInputs, run
+from pipeline.stages.evaluate import EvaluateConfig, EvaluateInputs, PhysicsEffortInputs, run
 
 log = logging.getLogger(__name__)
-
 
 
 def _input_files(ctx: StageContext) -> list[Path]:
@@ -27,6 +27,19 @@ def _input_files(ctx: StageContext) -> list[Path]:
     files = [ctx.resolve(s.calibration)]
     files += [ctx.resolve(p) for p in (s.ground_truth, s.ground_truth_labels) if p]
     return files
+
+
+def _physics_effort(ctx: StageContext) -> PhysicsEffortInputs | None:
+    """The physics result with its scene's actuator names and body masses (MuJoCo); None
+    when the physics stage left no result and scene."""
+    if not (ctx.has("physics", "result.npz") and ctx.has("physics", "scene.xml")):
+        return None
+    from pipeline.backends.mujoco.forces import actuator_names, body_masses_kg
+
+    result = ctx.load("physics", "result", PhysicsResult)
+    xml = ctx.store.path("physics", "scene.xml").read_text()
+    pids = [int(p) for p in result.person_ids]
+    return PhysicsEffortInputs(result, tuple(actuator_names(xml)), body_masses_kg(xml, pids))
 
 
 def _execute(ctx: StageContext, cfg: EvaluateConfig) -> dict[str, Any]:
@@ -58,6 +71,7 @@ def _execute(ctx: StageContext, cfg: EvaluateConfig) -> dict[str, Any]:
         sources=sources,
         gt=gt,
         gt_person_of_det=labels,
+        physics=_physics_effort(ctx) if "physics" in enabled else None,
     )
     metrics, flags = run(inp, cfg)
     best = list(sources)[-1]
