@@ -49,7 +49,7 @@ TARGETS: tuple[tuple[str, str, float], ...] = (
     ("fit reprojection median, all views", "fit:reproj_median_px", 6.0),
     ("fit reprojection p95, all views", "fit:reproj_p95_px", 15.0),
     ("fit bone-length std", "fit:bone_length_std_mm", 10.0),
-    ("frames with any problem flag", "session:flag_any_pct", 10.0),
+    ("frames with a tracking problem flag (identity, reprojection, penetration)", "session:flag_tracking_pct", 10.0),
     ("fit / filtered reprojection median", "ratio:reproj_median_px", 1.2),
     ("fit / filtered reprojection p95", "ratio:reproj_p95_px", 1.2),
 )
@@ -198,6 +198,8 @@ def _session_row(store: Any, reports: list[Any], work_dir: Path) -> dict[str, An
             col = pf.column(kind.key)  # None in a file written before the kind existed
             row[f"flag_{kind.key}_pct"] = 100.0 * float(col.mean()) if col is not None and n else float("nan")
         row["flag_any_pct"] = 100.0 * float(pf.flags.any(axis=1).mean()) if n else float("nan")
+        tracking = [c for k in FLAG_KINDS if k.group == "tracking" and (c := pf.column(k.key)) is not None]
+        row["flag_tracking_pct"] = 100.0 * float(np.any(tracking, axis=0).mean()) if n and tracking else float("nan")
     return row
 
 
@@ -387,7 +389,7 @@ def print_table(rows: list[dict]) -> None:
         ("tri_all_views_median_px", "tri all med px"),
         ("fit_all_views_median_px", "fit all med px"),
     )
-    keys = (*(k.key for k in FLAG_KINDS), "any")
+    keys = (*(k.key for k in FLAG_KINDS), "tracking", "any")
     for head in (*keys, *(h for _, h in extra)):
         flags.add_column(head, justify="right")
     flags.add_row(

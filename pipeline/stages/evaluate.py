@@ -28,18 +28,20 @@ from pipeline.schema.results import PhysicsResult
 
 class FlagKind(NamedTuple):
     """One kind of per-frame problem: ``key`` names it in metrics, files and benches,
-    ``label`` is what the viewer shows."""
+    ``label`` is what the viewer shows, ``group`` is ``tracking`` (the 3D result disagrees with
+    the cameras or itself) or ``physics`` (how the physics humanoids achieve it)."""
 
     key: str
     label: str
+    group: str = "tracking"
 
 
 FLAG_KINDS: tuple[FlagKind, ...] = (
     FlagKind("identity_low", "identity confidence low"),
     FlagKind("reprojection_high", "reprojection error high"),
     FlagKind("penetration_high", "penetration high"),
-    FlagKind("residual_high", "residual root force high"),
-    FlagKind("torque_high", "joint torque over human limit"),
+    FlagKind("residual_high", "residual root force high", "physics"),
+    FlagKind("torque_high", "joint torque over human limit", "physics"),
 )
 """The columns of ``ProblemFlags.flags``, in order: the one list every reader uses (the
 benches, the viewer). A new kind is appended here and computed in ``problem_flags``."""

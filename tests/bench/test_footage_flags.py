@@ -29,6 +29,7 @@ def test_flag_shares_per_kind(tmp_path: Path) -> None:
     keys = [k.key for k in FLAG_KINDS]
     flags[:5, keys.index("residual_high")] = True  # 25 %
     flags[3:7, keys.index("torque_high")] = True  # 20 %, overlapping: any = 7 frames
+    flags[6:9, keys.index("reprojection_high")] = True  # 15 %: tracking = 3 frames, any = 9
     z = np.zeros(F)
     pf = ProblemFlags(np.arange(F), np.ones(F), z, z, z, flags, np.array(keys), z, z)
     row = _session_row(_store(tmp_path, pf.to_arrays()), [], tmp_path)
@@ -36,7 +37,8 @@ def test_flag_shares_per_kind(tmp_path: Path) -> None:
     assert row["flag_residual_high_pct"] == pytest.approx(25.0)
     assert row["flag_torque_high_pct"] == pytest.approx(20.0)
     assert row["flag_identity_low_pct"] == 0.0
-    assert row["flag_any_pct"] == pytest.approx(35.0)
+    assert row["flag_any_pct"] == pytest.approx(45.0)
+    assert row["flag_tracking_pct"] == pytest.approx(15.0)  # the physics kinds are not tracking problems
     assert {f"flag_{k}_pct" for k in keys} <= set(row)
 
 
@@ -52,7 +54,7 @@ def test_older_problems_have_no_share_for_the_new_kinds(tmp_path: Path) -> None:
         "flags": flags,
     }
     row = _session_row(_store(tmp_path, old), [], tmp_path)
-    assert row["flag_identity_low_pct"] == 25.0 and row["flag_any_pct"] == 50.0
+    assert row["flag_identity_low_pct"] == 25.0 and row["flag_any_pct"] == 50.0 and row["flag_tracking_pct"] == 50.0
     assert math.isnan(row["flag_residual_high_pct"]) and math.isnan(row["flag_torque_high_pct"])
     bad = {**old, "flags": np.zeros((F, 2), bool)}
     with pytest.raises(ValueError, match="not the evaluate stage's problem flags"):
