@@ -115,8 +115,13 @@ FOOTAGE = (
     col("skate mm/frame", "foot_skate_mm_per_frame", "{:.2f}"),
     col("ground max mm", "ground_penetration_max_mm", "{:.1f}"),
     col("accel. mm/frame²", "accel_mm_per_frame2", "{:.2f}"),
-    col("residual force mean / max bw", "residual_force_mean_frac_bw", "{:.2f}",
-        "residual_force_max_frac_bw", "{:.2f}"),
+    col(
+        "residual force mean / max bw",
+        "residual_force_mean_frac_bw",
+        "{:.2f}",
+        "residual_force_max_frac_bw",
+        "{:.2f}",
+    ),
 )
 """``pipeline.bench.footage`` output rows (raw, filtered, fit, physics)."""
 
@@ -134,6 +139,7 @@ FIT = (
 """``pipeline.bench.fit`` rows (raw and filtered triangulation, fit, per camera count)."""
 
 PHYSICS = (
+    col("scene", "scene", "{}", text=True),
     col("method", "method", "{}", text=True),
     col("seed", "seed", "{}", text=True),
     col("pen. max / mean mm", "inter_penetration_max_mm", "{:.1f}", "inter_penetration_mean_mm", "{:.2f}"),
@@ -145,6 +151,8 @@ PHYSICS = (
     col("Δskate %", "d_skate_pct", "{:+.0f}"),
     col("ΔMPJPE %", "d_mpjpe_pct", "{:+.0f}"),
     col("residual bw", "residual_mean_frac_bw", "{:.2f}"),
+    col("floor Fz bw", "grf_z_mean_frac_bw", "{:.2f}"),
+    col("τ > human %", "torque_over_pct_any", "{:.0f}"),
     col("RTF ×", "realtime_factor", "{:.1f}"),
 )
 """``pipeline.bench.physics`` rows: the means over seeds when the rows have them, else every row."""
@@ -175,7 +183,8 @@ def _footage(rows: Sequence[Row]) -> tuple[list[Row], list[str]]:
         )
         notes.append(
             f"Frames flagged by the evaluate stage: {_value(session['flag_any_pct'], '{:.0f}')} % "
-            f"of {session.get('flag_frames', '?')} ({kinds})."
+            f"of {session.get('flag_frames', '?')}, tracking flags {_value(session.get('flag_tracking_pct'), '{:.0f}')} % "
+            f"({kinds})."
         )
     return outs, notes
 
@@ -185,7 +194,7 @@ def _physics(rows: Sequence[Row]) -> tuple[list[Row], list[str]]:
     if not means:
         return list(rows), []
     n = str(means[0]["seed"])[len("mean of") :].strip()
-    return [{k: v for k, v in r.items() if k != "seed"} for r in means], [f"Means over {n} synthetic bouts."]
+    return [{k: v for k, v in r.items() if k != "seed"} for r in means], [f"Means over {n} seeds per scene."]
 
 
 def _all(rows: Sequence[Row]) -> tuple[list[Row], list[str]]:
@@ -209,7 +218,11 @@ def render(name: str, rows: Sequence[Row]) -> str:
     """
     if name not in TABLES:
         raise ValueError(f"no table for bench {name!r}; known: {sorted(TABLES)}")
-    if not isinstance(rows, Sequence) or isinstance(rows, (str, bytes)) or not all(isinstance(r, Mapping) for r in rows):
+    if (
+        not isinstance(rows, Sequence)
+        or isinstance(rows, (str, bytes))
+        or not all(isinstance(r, Mapping) for r in rows)
+    ):
         raise ValueError(f"bench {name}: expected a list of row objects, got {type(rows).__name__}")
     columns, select = TABLES[name]
     shown, notes = select(rows)
@@ -237,7 +250,9 @@ def load_rows(json_path: str | Path) -> list[dict[str, Any]]:
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ValueError(f"{path}: malformed JSON: {e}") from e
     if not isinstance(data, list) or not all(isinstance(r, dict) for r in data):
-        raise ValueError(f"{path}: expected a JSON list of row objects (cornerman bench NAME --json), got {type(data).__name__}")
+        raise ValueError(
+            f"{path}: expected a JSON list of row objects (cornerman bench NAME --json), got {type(data).__name__}"
+        )
     return data
 
 
@@ -295,8 +310,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         prog="python -m pipeline.bench.report",
         description="Regenerate the README's bench tables from `cornerman bench NAME --json rows.json` files.",
     )
-    p.add_argument("readme", type=Path, help="the markdown file with <!-- bench:NAME --> ... <!-- /bench:NAME --> markers")
-    p.add_argument("sources", nargs="+", metavar="NAME=JSON", help=f"bench rows, NAME one of {', '.join(TABLES)}")
+    p.add_argument(
+        "readme",
+        type=Path,
+        help="the markdown file with <!-- bench:NAME --> ... <!-- /bench:NAME --> markers",
+    )
+    p.add_argument(
+        "sources", nargs="+", metavar="NAME=JSON", help=f"bench rows, NAME one of {', '.join(TABLES)}"
+    )
     args = p.parse_args(argv)
     sources: dict[str, str] = {}
     for item in args.sources:

@@ -18,12 +18,29 @@ def _table(md: str) -> list[list[str]]:
 
 
 def _physics_rows() -> list[dict]:
-    kin = {"method": "kinematic (fit)", "inter_penetration_max_mm": 1.04, "inter_penetration_mean_mm": 0.039,
-           "foot_skate_mm_per_frame": 1.1855, "mpjpe_mm": 10.3455, "body_pen_max_mm": 36.54, "body_pen_mean_mm": 5.06}
-    multi = {"method": "physics (multi, bodyfit mesh)", "inter_penetration_max_mm": 12.67,
-             "inter_penetration_mean_mm": 0.378, "foot_skate_mm_per_frame": 0.3238, "mpjpe_mm": 11.3008,
-             "body_pen_max_mm": 3.67, "body_pen_mean_mm": 0.056, "d_skate_pct": -72.86, "d_mpjpe_pct": 9.27,
-             "d_body_pen_max_pct": -0.4, "realtime_factor": 18.43, "residual_mean_frac_bw": 0.8307}
+    kin = {
+        "method": "kinematic (fit)",
+        "inter_penetration_max_mm": 1.04,
+        "inter_penetration_mean_mm": 0.039,
+        "foot_skate_mm_per_frame": 1.1855,
+        "mpjpe_mm": 10.3455,
+        "body_pen_max_mm": 36.54,
+        "body_pen_mean_mm": 5.06,
+    }
+    multi = {
+        "method": "physics (multi, bodyfit mesh)",
+        "inter_penetration_max_mm": 12.67,
+        "inter_penetration_mean_mm": 0.378,
+        "foot_skate_mm_per_frame": 0.3238,
+        "mpjpe_mm": 11.3008,
+        "body_pen_max_mm": 3.67,
+        "body_pen_mean_mm": 0.056,
+        "d_skate_pct": -72.86,
+        "d_mpjpe_pct": 9.27,
+        "d_body_pen_max_pct": -0.4,
+        "realtime_factor": 18.43,
+        "residual_mean_frac_bw": 0.8307,
+    }
     per_seed = [{**kin, "seed": 0, "mpjpe_mm": 99.0}, {**multi, "seed": 0, "mpjpe_mm": 98.0}]
     return per_seed + [{**kin, "seed": "mean of 4"}, {**multi, "seed": "mean of 4"}]
 
@@ -40,7 +57,7 @@ def test_physics_table_shows_the_means_with_units_and_signed_changes() -> None:
     assert multi[head.index("ΔMPJPE %")] == "+9" and multi[head.index("Δskate %")] == "-73"
     assert multi[head.index("Δbody pen. max %")] == "0"  # -0.4 rounds to an unsigned 0
     assert kin[head.index("ΔMPJPE %")] == "" and kin[head.index("RTF ×")] == ""
-    assert "Means over 4 synthetic bouts." in md
+    assert "Means over 4 seeds per scene." in md
     assert "ground max mm" not in head  # no row has it: the column is left out
 
 
@@ -53,9 +70,19 @@ def test_physics_table_without_means_shows_every_seed() -> None:
 def test_shelf_table_leaves_out_the_timing_row_and_keeps_the_references() -> None:
     rows = [
         {"output": "stage times", "kind": "timing", "fit_s": 31.1},
-        {"output": "fit", "kind": "measured", "pcp_actor0": 99.318, "pcp_actor1": 94.054, "pcp_actor2": 98.385,
-         "pcp_avg": 97.2527, "mpjpe_mm": 51.637, "stage_s": 31.14, "pipeline_s": 36.3, "target": "PCP >= 98.5",
-         "target_met": False},
+        {
+            "output": "fit",
+            "kind": "measured",
+            "pcp_actor0": 99.318,
+            "pcp_actor1": 94.054,
+            "pcp_actor2": 98.385,
+            "pcp_avg": 97.2527,
+            "mpjpe_mm": 51.637,
+            "stage_s": 31.14,
+            "pipeline_s": 36.3,
+            "target": "PCP >= 98.5",
+            "target_met": False,
+        },
         {"output": "paper: physics (published)", "kind": "published", "pcp_avg": 98.3},
     ]
     head, fit, paper = _table(render("shelf", rows))
@@ -68,14 +95,42 @@ def test_shelf_table_leaves_out_the_timing_row_and_keeps_the_references() -> Non
 
 def test_footage_table_joins_median_and_p95_and_notes_the_flags() -> None:
     rows = [
-        {"kind": "output", "output": "fit", "reproj_median_px": 10.695, "reproj_p95_px": 148.8, "coverage_pct": 100.0,
-         "bone_length_std_mm": 7.69, "foot_skate_mm_per_frame": 8.405},
-        {"kind": "output", "output": "physics", "reproj_median_px": 15.47, "reproj_p95_px": 146.9,
-         "residual_force_mean_frac_bw": 1.2836},
-        {"kind": "session", "output": "session", "flag_frames": 100, "flag_any_pct": 57.0, "flag_identity_low_pct": 12.0,
-         "flag_reprojection_high_pct": 57.0, "flag_penetration_high_pct": 0.0, "flag_residual_high_pct": 3.0,
-         "flag_torque_high_pct": 41.0},
-        {"kind": "target", "output": "target", "target": "fit bone-length std", "value": 7.7, "limit": 10.0, "ok": True},
+        {
+            "kind": "output",
+            "output": "fit",
+            "reproj_median_px": 10.695,
+            "reproj_p95_px": 148.8,
+            "coverage_pct": 100.0,
+            "bone_length_std_mm": 7.69,
+            "foot_skate_mm_per_frame": 8.405,
+        },
+        {
+            "kind": "output",
+            "output": "physics",
+            "reproj_median_px": 15.47,
+            "reproj_p95_px": 146.9,
+            "residual_force_mean_frac_bw": 1.2836,
+        },
+        {
+            "kind": "session",
+            "output": "session",
+            "flag_frames": 100,
+            "flag_any_pct": 57.0,
+            "flag_tracking_pct": 56.0,
+            "flag_identity_low_pct": 12.0,
+            "flag_reprojection_high_pct": 57.0,
+            "flag_penetration_high_pct": 0.0,
+            "flag_residual_high_pct": 3.0,
+            "flag_torque_high_pct": 41.0,
+        },
+        {
+            "kind": "target",
+            "output": "target",
+            "target": "fit bone-length std",
+            "value": 7.7,
+            "limit": 10.0,
+            "ok": True,
+        },
     ]
     md = render("footage", rows)
     head, fit, phys = _table(md)
@@ -84,18 +139,34 @@ def test_footage_table_joins_median_and_p95_and_notes_the_flags() -> None:
     assert phys[head.index("residual force mean / max bw")] == "1.28 / –"
     assert fit[head.index("residual force mean / max bw")] == ""
     assert (
-        "57 % of 100 (identity confidence low 12 %, reprojection error high 57 %, penetration high 0 %, "
+        "57 % of 100, tracking flags 56 % (identity confidence low 12 %, reprojection error high 57 %, penetration high 0 %, "
         "residual root force high 3 %, joint torque over human limit 41 %)"
     ) in md
 
 
 def test_fit_and_triangulation_tables() -> None:
-    fit = [{"cameras": 4, "method": "fit (anny)", "mpjpe_mm": 8.94, "accel_err_mm": 2.9327, "accel_vs_tri_pct": -30.27,
-            "fps_per_person": 34.64}]
+    fit = [
+        {
+            "cameras": 4,
+            "method": "fit (anny)",
+            "mpjpe_mm": 8.94,
+            "accel_err_mm": 2.9327,
+            "accel_vs_tri_pct": -30.27,
+            "fps_per_person": 34.64,
+        }
+    ]
     head, row = _table(render("fit", fit))
     assert row[:4] == ["4", "fit (anny)", "8.9", "2.93"] and row[head.index("Δaccel. vs filtered %")] == "-30"
-    tri = [{"scenario": "2 cams", "method": "plain DLT", "pcp_pct": 55.372, "mpjpe_mm": 56.24, "id_acc_pct": 100.0,
-            "tri_fps": 7460.2}]
+    tri = [
+        {
+            "scenario": "2 cams",
+            "method": "plain DLT",
+            "pcp_pct": 55.372,
+            "mpjpe_mm": 56.24,
+            "id_acc_pct": 100.0,
+            "tri_fps": 7460.2,
+        }
+    ]
     head, row = _table(render("triangulation", tri))
     assert row == ["2 cams", "plain DLT", "55.37", "56.2", "100.00", "7460"] and "frames/s (all)" not in head
 
@@ -143,7 +214,11 @@ def test_update_readme_replaces_only_the_marked_text(tmp_path: Path) -> None:
     assert text.endswith("<!-- /bench:physics -->\ntail line\n")
     # rerunnable: the same rows give the same file
     assert update_readme(readme, {"fit": fit, "physics": phys}) == text
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["README.md", "fit.json", "phys.json"]  # no temp file left
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "README.md",
+        "fit.json",
+        "phys.json",
+    ]  # no temp file left
 
 
 def test_missing_marker_names_the_readme_and_writes_nothing(tmp_path: Path) -> None:
@@ -154,7 +229,9 @@ def test_missing_marker_names_the_readme_and_writes_nothing(tmp_path: Path) -> N
     with pytest.raises(ValueError, match=r"README\.md: needs exactly one <!-- bench:triangulation -->"):
         update_readme(readme, {"fit": fit, "triangulation": tri})
     assert readme.read_text() == README  # the fit table made first was not written either
-    readme.write_text(README.replace("<!-- /bench:fit -->\n", "") + "<!-- /bench:fit -->\n<!-- /bench:fit -->\n")
+    readme.write_text(
+        README.replace("<!-- /bench:fit -->\n", "") + "<!-- /bench:fit -->\n<!-- /bench:fit -->\n"
+    )
     with pytest.raises(ValueError, match="found 1 and 2"):
         update_readme(readme, {"fit": fit})
     readme.write_text("<!-- /bench:fit -->\n<!-- bench:fit -->\n")
