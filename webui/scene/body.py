@@ -1,23 +1,63 @@
-"""Body meshes of the fit stage, posed for every frame in a background thread.
+"""Body meshes of the fit stage, posed for every frame by a short-lived child process.
 
-``pipeline.backends.anny.body.posed_mesh`` imports torch, so it is imported lazily in
-the viewer process only. Until a person's meshes are ready (or when the backend is
-unavailable) the viewer shows the skeleton only.
+Posing needs the body model (torch for anny); importing torch alone costs a viewer about
+180 MB and posing another 130 MB that the allocator keeps. So the viewer hands the
+``BodyFit`` to ``python -m webui.scene.body_worker`` and keeps only the vertices it streams
+back (about 9 MB for two athletes over 300 frames); the child exits when done. Until a
+person's meshes are ready (or when the backend is unavailable) the viewer shows the
+skeleton only. Every client of the viewer shares one cache.
 """
 
 from __future__ import annotations
 
+import io
+import json
 import logging
+import os
+import subprocess
+import sys
 import threading
+import time
 from collections.abc import Callable
+from typing import IO
 
 import numpy as np
 
+from pipeline.schema.base import to_arrays
 from pipeline.schema.results import BodyFit
 
 log = logging.getLogger(__name__)
 
 CHUNK_FRAMES = 64
+"""Frame rows posed (and sent back) at a time; the viewer shows each chunk as it arrives."""
+
+
+def read_record(stream: IO[bytes]) -> tuple[dict, np.ndarray | None] | None:
+    """One record of the worker's stdout: a JSON header line, then the raw bytes of one array when
+    the header has ``dtype`` and ``shape``; None at the end of the stream. ``ValueError`` when truncated."""
+    line = stream.readline()
+    if not line:
+        return None
+    header = json.loads(line)
+    if "dtype" not in header:
+        return header, None
+    dtype, shape = np.dtype(header["dtype"]), tuple(int(n) for n in header["shape"])
+    nbytes = dtype.itemsize * int(np.prod(shape))
+    raw = stream.read(nbytes)
+    if len(raw) != nbytes:
+        raise ValueError(f"record {header.get('kind')!r}: {len(raw)} of {nbytes} bytes")
+    return header, np.frombuffer(raw, dtype=dtype).reshape(shape)
+
+
+def write_record(stream: IO[bytes], header: dict, arr: np.ndarray | None = None) -> None:
+    """Write one record (see ``read_record``); ``arr`` goes as little-endian raw bytes."""
+    if arr is not None:
+        arr = np.ascontiguousarray(arr, dtype=arr.dtype.newbyteorder("<"))
+        header = {**header, "dtype": arr.dtype.str, "shape": list(arr.shape)}
+    stream.write((json.dumps(header) + "\n").encode())
+    if arr is not None:
+        stream.write(arr.tobytes())
+    stream.flush()
 
 
 class BodyMeshCache:
@@ -26,7 +66,7 @@ class BodyMeshCache:
     def __init__(
         self, bodyfit: BodyFit, on_chunk: Callable[[], None] | None = None, body_model_path: str = ""
     ) -> None:
-        """``on_chunk`` is called (from the worker thread) whenever more frames are ready;
+        """``on_chunk`` is called (from the reader thread) whenever more frames are ready;
         ``body_model_path``: the user's SMPL/SMPL-X model folder (SMPL fits only)."""
         self.bodyfit = bodyfit
         self.body_model_path = body_model_path
@@ -38,6 +78,7 @@ class BodyMeshCache:
         self.error: str | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._proc: subprocess.Popen[bytes] | None = None
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="body-meshes", daemon=True)
@@ -45,6 +86,9 @@ class BodyMeshCache:
 
     def stop(self) -> None:
         self._stop.set()
+        proc = self._proc
+        if proc is not None and proc.poll() is None:
+            proc.kill()
 
     def join(self, timeout: float | None = None) -> None:
         if self._thread is not None:
@@ -55,40 +99,65 @@ class BodyMeshCache:
         return float(self._done.mean()) if self._done.size else 1.0
 
     def _run(self) -> None:
+        buf = io.BytesIO()
+        np.savez(buf, **to_arrays(self.bodyfit))  # type: ignore[arg-type]
+        cmd = [sys.executable, "-m", "webui.scene.body_worker", "--chunk", str(CHUNK_FRAMES)]
+        if self.body_model_path:
+            cmd += ["--body-model-path", self.body_model_path]
+        env = dict(os.environ)
+        env.setdefault("OMP_NUM_THREADS", "1")
         try:
-            if self.bodyfit.body_model == "anny":
-                from pipeline.backends.anny.body import posed_mesh
-            else:
-                from pipeline.backends.smpl.body import posed_mesh as smpl_mesh
-
-                def posed_mesh(
-                    bodyfit: BodyFit, person_index: int, frames: np.ndarray, decimate: bool = True
-                ) -> tuple[np.ndarray, np.ndarray]:  # SMPL: the full mesh (6890 / 10475 vertices)
-                    return smpl_mesh(bodyfit, person_index, frames, self.body_model_path)
-        except ImportError as e:
-            self.error = f"body model backend unavailable: {e}"
+            proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+        except OSError as e:
+            self.error = f"cannot start the body mesh worker: {e}"
             log.warning("%s; showing skeletons only", self.error)
             return
-        n = self.bodyfit.frame_indices.shape[0]
+        self._proc = proc
+        t0 = time.monotonic()
+        assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
         try:
-            for pi in range(self.bodyfit.person_ids.shape[0]):
-                for start in range(0, n, CHUNK_FRAMES):
-                    if self._stop.is_set():
-                        return
-                    rows = np.arange(start, min(n, start + CHUNK_FRAMES))
-                    verts, faces = posed_mesh(self.bodyfit, pi, rows, decimate=True)
-                    if self._verts[pi] is None:
-                        self._verts[pi] = np.zeros((n, verts.shape[1], 3), dtype=np.float32)
-                        self.faces = np.asarray(faces, dtype=np.int64)
-                    buf = self._verts[pi]
-                    assert buf is not None
-                    buf[rows] = verts
-                    self._done[pi, rows] = True
-                    if self.on_chunk is not None:
-                        self.on_chunk()
-        except (ValueError, RuntimeError) as e:
-            self.error = f"posing the body meshes failed: {e}"
+            proc.stdin.write(buf.getvalue())
+            proc.stdin.close()
+            while not self._stop.is_set():
+                rec = read_record(proc.stdout)
+                if rec is None:
+                    break
+                self._take(*rec)
+        except (OSError, ValueError) as e:  # a killed worker (stop) or a truncated record
+            if not self._stop.is_set():
+                self.error = f"body mesh worker failed: {e}"
+        finally:
+            if self._stop.is_set() and proc.poll() is None:
+                proc.kill()
+            err = proc.stderr.read().decode(errors="replace")[-2000:]
+            code = proc.wait()
+            for s in (proc.stdout, proc.stderr):
+                s.close()
+        if self.error is None and not self._stop.is_set():
+            log.info("body meshes posed: %d persons x %d frames in %.1f s (worker pid %d)", self._done.shape[0],
+                     self._done.shape[1], time.monotonic() - t0, proc.pid)
+        if code != 0 and not self._stop.is_set() and self.error is None:
+            self.error = f"body mesh worker exited with {code}: {err.strip().splitlines()[-1] if err.strip() else ''}"
+        if self.error is not None:
             log.warning("%s; showing skeletons only", self.error)
+
+    def _take(self, header: dict, arr: np.ndarray | None) -> None:
+        kind = header.get("kind")
+        if kind == "error":
+            self.error = str(header.get("message", "unknown error"))
+        elif kind == "faces" and arr is not None:
+            self.faces = np.asarray(arr, dtype=np.int64)
+        elif kind == "verts" and arr is not None:
+            pi, start = int(header["person"]), int(header["start"])
+            rows = np.arange(start, start + arr.shape[0])
+            if self._verts[pi] is None:
+                self._verts[pi] = np.zeros((self._done.shape[1], arr.shape[1], 3), dtype=np.float32)
+            buf = self._verts[pi]
+            assert buf is not None
+            buf[rows] = arr
+            self._done[pi, rows] = True
+            if self.on_chunk is not None:
+                self.on_chunk()
 
     def get(self, person_index: int, row: int) -> np.ndarray | None:
         """(verts, 3) float32 world vertices, or None while not computed."""
