@@ -1,17 +1,18 @@
-"""Start (or reuse) one viewer process per (session, role, owner) on a free loopback port.
+"""Start (or reuse) one viewer process per session on a free loopback port.
 
-Used by the server, which serves each viewer to its signed-in owner under
-``/viewer/{session}/`` (``server.api.routes.viewer_proxy``). The viser port binds to
-127.0.0.1 only: browsers reach a viewer through the app, never directly. This module
-imports neither torch nor viser: the viewer runs in its own process (``python -m
-webui.app``), which also keeps the body model and MuJoCo out of the server. The token goes
-to the child through its environment, not its command line.
+Used by the server, which serves the viewer to every signed-in user under
+``/viewer/{session}/`` (``server.api.routes.viewer_proxy``); the one process serves every
+client of the session, each with its own view, and learns who a client is from the token
+the proxy puts in that connection's handshake (``webui.clients``). The viser port binds to
+127.0.0.1 only: browsers reach a viewer through the app, never directly. A viewer started
+with ``idle_s`` exits after that long without a client; the next ``start_viewer`` starts a
+new one. This module imports neither torch nor viser: the viewer runs in its own process
+(``python -m webui.app``), which also keeps the body model and MuJoCo out of the server.
 """
 
 from __future__ import annotations
 
 import atexit
-import hashlib
 import logging
 import os
 import socket
@@ -19,7 +20,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,7 +38,7 @@ class _Viewer:
     log_path: Path
 
 
-_viewers: dict[tuple[str, str, str], _Viewer] = {}
+_viewers: dict[str, _Viewer] = {}
 _lock = threading.Lock()
 
 
@@ -60,60 +60,64 @@ def _local_url(port: int) -> str:
     return f"http://{HOST}:{port}/"
 
 
-def port_of(session_id: str, role: str, owner: str) -> int | None:
-    """Port of the live viewer of ``session_id`` for ``(role, owner)``, or None."""
+def _live(session_id: str) -> _Viewer | None:
+    v = _viewers.get(str(session_id))
+    return v if v is not None and v.proc.poll() is None else None
+
+
+def port_of(session_id: str) -> int | None:
+    """Port of the live viewer of ``session_id``, or None (never started, stopped, or exited when idle)."""
     with _lock:
-        v = _viewers.get((str(session_id), role, owner))
-        return v.port if v is not None and v.proc.poll() is None else None
+        v = _live(session_id)
+        return v.port if v is not None else None
 
 
-def start_viewer(
-    session_id: str,
-    session_dir: Path,
-    api_url: str,
-    token: str | Callable[[], str],
-    role: str,
-    owner: str | None = None,
-) -> str:
-    """Local URL (``http://127.0.0.1:PORT/``) of a running viewer of ``session_dir`` for
-    ``(role, owner)``; starts one if needed.
+def pid_of(session_id: str) -> int | None:
+    """Process id of the live viewer of ``session_id``, or None."""
+    with _lock:
+        v = _live(session_id)
+        return v.proc.pid if v is not None else None
 
-    ``token`` is the API token the viewer acts with, or a function that makes one (called
-    only when a viewer is started). ``owner`` keys the viewer to one user (default: a hash
-    of ``token``, which must then be a string). Waits until the viewer accepts connections
-    (``START_TIMEOUT_S``); raises ``ValueError`` (with the tail of its log) if it exits or
-    does not start in time.
+
+def start_viewer(session_id: str, session_dir: Path, api_url: str, idle_s: float = 0.0) -> str:
+    """Local URL (``http://127.0.0.1:PORT/``) of the running viewer of ``session_dir``; starts one if
+    none runs (or the last one exited, e.g. after ``idle_s`` seconds without a client).
+
+    ``api_url``: the API the viewer identifies its clients with (empty: every client read-only);
+    ``idle_s`` > 0: the viewer exits after that long without a client. Waits until the viewer
+    accepts connections (``START_TIMEOUT_S``); raises ``ValueError`` (with the tail of its
+    log) if it exits or does not start in time.
     """
-    if owner is None:
-        if not isinstance(token, str):
-            raise ValueError("start_viewer: pass owner= when the token is made by a function")
-        owner = hashlib.sha256(token.encode()).hexdigest()[:16]
-    # One viewer per (session, role) and user: edits made in a viewer are authored with
-    # its token, so two users never share one.
-    key = (str(session_id), role, owner)
+    if idle_s < 0:
+        raise ValueError(f"start_viewer: idle_s must be >= 0 (0: never stop), got {idle_s}")
+    key = str(session_id)
     with _lock:
         v = _viewers.get(key)
         if v is not None and v.proc.poll() is None:
             return _local_url(v.port)
         if v is not None:
+            log.info("viewer of session %s exited (%s): starting a new one", key, v.proc.returncode)
             _stop(v)
             del _viewers[key]
         port = free_port(HOST)
         log_dir = Path(session_dir) / "logs"
         log_dir.mkdir(parents=True, exist_ok=True)
-        log_path = log_dir / f"viewer-{role}.log"
+        log_path = log_dir / "viewer.log"
         cmd = [
             sys.executable, "-m", "webui.app",
             "--session-dir", str(Path(session_dir).resolve()),
             "--api-url", api_url,
-            "--role", role,
             "--port", str(port),
             "--host", HOST,
-            "--session-id", str(session_id),
+            "--session-id", key,
             "--parent-pid", str(os.getpid()),
+            "--idle-s", f"{idle_s:g}",
         ]  # fmt: skip
-        env = dict(os.environ, CORNERMAN_VIEWER_TOKEN=token if isinstance(token, str) else token())
+        env = {k: val for k, val in os.environ.items() if k != "CORNERMAN_VIEWER_TOKEN"}
         env.setdefault("OMP_NUM_THREADS", "1")
+        # viser answers on a pool of threads: two malloc arenas instead of one per thread keep
+        # the resident size down (measured by ``cornerman bench viewer``).
+        env.setdefault("MALLOC_ARENA_MAX", "2")
         with open(log_path, "ab") as logf:
             proc = subprocess.Popen(cmd, stdout=logf, stderr=subprocess.STDOUT, env=env, start_new_session=True)
         v = _Viewer(proc, port, HOST, log_path)
@@ -125,7 +129,7 @@ def start_viewer(
                 raise ValueError(f"viewer of session {session_id} did not start (see {log_path}):\n{tail}")
             time.sleep(0.1)
         _viewers[key] = v
-        log.info("viewer of session %s (%s) on port %d (pid %d)", session_id, role, port, proc.pid)
+        log.info("viewer of session %s on port %d (pid %d)", key, port, proc.pid)
         return _local_url(port)
 
 
@@ -140,21 +144,18 @@ def _stop(v: _Viewer, timeout_s: float = 5.0) -> None:
         v.proc.wait(timeout_s)
 
 
-def running() -> dict[tuple[str, str], list[int]]:
-    """(session id, role) -> ports of the live viewers."""
-    out: dict[tuple[str, str], list[int]] = {}
+def running() -> dict[str, int]:
+    """Session id -> port of each live viewer."""
     with _lock:
-        for (sid, role, _), v in _viewers.items():
-            if v.proc.poll() is None:
-                out.setdefault((sid, role), []).append(v.port)
-    return out
+        return {sid: v.port for sid, v in _viewers.items() if v.proc.poll() is None}
 
 
-def stop_viewer(session_id: str, role: str | None = None) -> None:
-    """Stop the viewers of a session (all roles, or one); e.g. when it is deleted."""
+def stop_viewer(session_id: str) -> None:
+    """Stop the viewer of a session (e.g. when it is deleted)."""
     with _lock:
-        for key in [k for k in _viewers if k[0] == str(session_id) and (role is None or k[1] == role)]:
-            _stop(_viewers.pop(key))
+        v = _viewers.pop(str(session_id), None)
+        if v is not None:
+            _stop(v)
 
 
 def stop_all() -> None:

@@ -21,6 +21,8 @@ SESSION_COOKIE = "cornerman_session"
 """The browser login cookie (HttpOnly, SameSite=Strict): a server-side token labelled ``SESSION_LABEL``."""
 SESSION_LABEL = "session"
 """``ApiToken.label`` of the tokens ``POST /login`` mints; they expire after ``Settings.session_max_age_s``."""
+VIEWER_LABEL_PREFIX = "viewer:"
+"""``ApiToken.label`` prefix of the tokens the viewer proxy mints per websocket connection (expire like login tokens)."""
 SAFE_METHODS = ("GET", "HEAD", "OPTIONS")
 
 
@@ -70,12 +72,13 @@ TokenDep = Annotated[str, Depends(get_token)]
 
 def user_of_token(db: Session, token: str, settings: Settings) -> User | None:
     """The user a token (API token or login-cookie token) belongs to; None when it is unknown or is a
-    login token older than ``settings.session_max_age_s`` (which is then deleted)."""
+    login token or a viewer connection's token (label ``viewer:<session>``, revoked when the connection
+    ends; this bounds one a crash left behind) older than ``settings.session_max_age_s`` (then deleted)."""
     found = crud.get_token_owner(db, token=token)
     if found is None:
         return None
     user, row = found
-    if row.label == SESSION_LABEL:
+    if row.label == SESSION_LABEL or row.label.startswith(VIEWER_LABEL_PREFIX):
         created = row.created_at if row.created_at.tzinfo else row.created_at.replace(tzinfo=UTC)
         if (datetime.now(UTC) - created).total_seconds() > settings.session_max_age_s:
             crud.revoke_token(db, token=token)

@@ -53,6 +53,10 @@ class Settings(BaseSettings):
     """Mark the session cookie ``Secure`` (HTTPS only) even when the request reached the app over plain HTTP
     (set it behind a TLS-terminating proxy). Requests that arrive over HTTPS always get ``Secure``."""
 
+    viewer_idle_s: float = Field(default=600.0, ge=0.0)
+    """A session's viewer process with no client for this many seconds exits (0: never); the next
+    visit to ``/viewer/{id}/`` starts a new one."""
+
     @property
     def db_path(self) -> Path:
         return self.home / "cornerman.db"

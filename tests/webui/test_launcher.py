@@ -1,4 +1,5 @@
-"""webui.launcher: one viewer process per (session, role, user), on 127.0.0.1, reused, stopped; and stays light."""
+"""webui.launcher: one viewer process per session, on 127.0.0.1, reused, stopped, exits when idle and
+starts again on the next visit; and stays light."""
 
 from __future__ import annotations
 
@@ -19,54 +20,54 @@ def test_import_is_light() -> None:
     assert out == "[]"
 
 
-def test_start_reuse_stop(tmp_path: Path) -> None:
-    sdir = build_session(tmp_path, n_frames=4)
+def test_one_viewer_per_session_reused_and_stopped(tmp_path: Path) -> None:
+    sdir = build_session(tmp_path / "a", n_frames=4)
+    other = build_session(tmp_path / "b", n_frames=4)
     try:
-        url = launcher.start_viewer("s1", sdir, api_url="", token="t1", role="coach")
+        url = launcher.start_viewer("s1", sdir, api_url="")
         assert url.startswith("http://127.0.0.1:")
         with urllib.request.urlopen(url, timeout=10) as r:
             assert r.status == 200 and b"<html" in r.read(2000).lower()
-        assert launcher.start_viewer("s1", sdir, api_url="", token="t1", role="coach") == url  # reused
-        other = launcher.start_viewer("s1", sdir, api_url="", token="t2", role="coach")  # another user
-        assert other != url
-        assert sorted(len(v) for v in launcher.running().values()) == [2]
+        assert launcher.start_viewer("s1", sdir, api_url="") == url  # every user shares it
+        assert launcher.port_of("s1") == int(url.rsplit(":", 1)[1].rstrip("/"))
+        pid = launcher.pid_of("s1")
+        assert pid is not None and b"CORNERMAN_VIEWER_TOKEN" not in Path(f"/proc/{pid}/environ").read_bytes()
+        other_url = launcher.start_viewer("s2", other, api_url="")
+        assert other_url != url and sorted(launcher.running()) == ["s1", "s2"]
         launcher.stop_viewer("s1")
-        assert launcher.running() == {}
+        assert launcher.port_of("s1") is None and list(launcher.running()) == ["s2"]
+        with pytest.raises(ValueError, match="idle_s"):
+            launcher.start_viewer("s3", sdir, api_url="", idle_s=-1)
     finally:
         launcher.stop_all()
+    assert launcher.running() == {}
 
 
-def test_owner_keyed_viewer_mints_its_token_once(tmp_path: Path) -> None:
-    """With ``owner=``, the token function runs only when a viewer starts, and ``port_of`` finds it."""
-    import os
+def test_an_idle_viewer_exits_and_the_next_visit_starts_another(tmp_path: Path) -> None:
+    import time
 
     sdir = build_session(tmp_path, n_frames=4)
-    minted: list[str] = []
-
-    def mint() -> str:
-        minted.append(f"cm_minted{len(minted)}")
-        return minted[-1]
-
     try:
-        assert launcher.port_of("s3", "annotator", "user:7") is None
-        url = launcher.start_viewer("s3", sdir, api_url="", token=mint, role="annotator", owner="user:7")
-        assert launcher.start_viewer("s3", sdir, api_url="", token=mint, role="annotator", owner="user:7") == url
-        assert minted == ["cm_minted0"]  # reused without minting again
-        port = launcher.port_of("s3", "annotator", "user:7")
-        assert port is not None and url == f"http://127.0.0.1:{port}/"
-        assert launcher.port_of("s3", "annotator", "user:8") is None  # another user has none
-        v = launcher._viewers[("s3", "annotator", "user:7")]
-        env = Path(f"/proc/{v.proc.pid}/environ").read_bytes().split(b"\0")
-        assert b"CORNERMAN_VIEWER_TOKEN=cm_minted0" in env and os.environ.get("CORNERMAN_VIEWER_TOKEN") != "cm_minted0"
-        with pytest.raises(ValueError, match="owner="):
-            launcher.start_viewer("s3", sdir, api_url="", token=mint, role="annotator")
+        launcher.start_viewer("s4", sdir, api_url="", idle_s=1.0)
+        pid = launcher.pid_of("s4")
+        assert pid is not None
+        t_end = time.monotonic() + 20
+        while launcher.pid_of("s4") is not None and time.monotonic() < t_end:
+            time.sleep(0.2)
+        assert launcher.pid_of("s4") is None, "viewer still running 20 s after its idle time of 1 s"
+        assert "no client for" in (sdir / "logs" / "viewer.log").read_text()
+        url = launcher.start_viewer("s4", sdir, api_url="", idle_s=1.0)  # the next visit
+        new_pid = launcher.pid_of("s4")
+        assert new_pid is not None and new_pid != pid
+        with urllib.request.urlopen(url, timeout=10) as r:
+            assert r.status == 200
     finally:
         launcher.stop_all()
 
 
 def test_failure_reports_the_log(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="did not start"):
-        launcher.start_viewer("s2", tmp_path, api_url="", token="t", role="coach")  # no session.json there
+        launcher.start_viewer("s2", tmp_path, api_url="")  # no session.json there
     launcher.stop_all()
 
 
@@ -79,7 +80,7 @@ def test_viewer_exits_with_its_parent(tmp_path: Path) -> None:
     sdir = build_session(tmp_path, n_frames=4)
     code = (
         "import sys; from pathlib import Path; from webui import launcher; "
-        f"print(launcher.start_viewer('s9', Path({str(sdir)!r}), '', 't', 'coach'), flush=True); "
+        f"print(launcher.start_viewer('s9', Path({str(sdir)!r}), ''), flush=True); "
         "import time; time.sleep(600)"
     )
     parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 import viser
 from viser._gui_handles import GuiProgressBarHandle
 
+from webui.scope import Scope
+
 SCOPES: tuple[str, ...] = ("this view", "all views")
 NO_TRACK = "(no detection)"
 
@@ -43,7 +45,7 @@ def parse_track_label(label: str) -> int | None:
     return int(label[1:].split(" ", 1)[0])
 
 
-def make_annotate(server: viser.ViserServer, camera_names: tuple[str, ...], athletes: list[tuple[int, str]]) -> AnnotateHandles:
+def make_annotate(server: Scope, camera_names: tuple[str, ...], athletes: list[tuple[int, str]]) -> AnnotateHandles:
     """``athletes``: (person id, display name) of the first two persons (A and B)."""
     view = server.gui.add_dropdown("View", camera_names, initial_value=camera_names[0])
     track = server.gui.add_dropdown("Detection", (NO_TRACK,), initial_value=NO_TRACK)

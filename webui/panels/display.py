@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import viser
 
 from pipeline.schema.sources import RESULT_LABELS
+from webui.scope import Scope
 
 SOURCE_LABELS: dict[str, str] = RESULT_LABELS
 
@@ -33,7 +34,7 @@ def label_to_source(label: str) -> str:
     raise ValueError(f"unknown source label {label!r}; known: {list(SOURCE_LABELS.values())}")
 
 
-def make_display(server: viser.ViserServer, available: list[str]) -> DisplayHandles:
+def make_display(server: Scope, available: list[str]) -> DisplayHandles:
     opts = source_options(available)
     source = server.gui.add_dropdown("3D source", opts, initial_value=opts[-1] if opts else None)
     skeleton = server.gui.add_checkbox("Keypoints and bones", initial_value=True)

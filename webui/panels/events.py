@@ -18,6 +18,7 @@ from viser._messages import GuiSliderMark
 
 from pipeline.schema.analytics import OUTCOMES, PUNCH_TYPES
 from webui.events import ALL, EventsView
+from webui.scope import Scope
 
 
 @dataclass
@@ -36,7 +37,7 @@ class EventsHandles:
 NO_EVENT = "(pick a punch to jump to it)"
 
 
-def make_event_rows(server: viser.ViserServer, athletes: list[tuple[int, str]], n_frames: int) -> tuple[
+def make_event_rows(server: Scope, athletes: list[tuple[int, str]], n_frames: int) -> tuple[
     dict[int, viser.GuiSliderHandle[int]], viser.GuiButtonHandle, viser.GuiButtonHandle
 ]:  # fmt: skip
     """The per-athlete punch rows and the previous / next punch buttons (under the timeline)."""
@@ -51,7 +52,7 @@ def make_event_rows(server: viser.ViserServer, athletes: list[tuple[int, str]], 
 
 
 def make_events(
-    server: viser.ViserServer,
+    server: Scope,
     athletes: list[str],
     rows: tuple[dict[int, viser.GuiSliderHandle[int]], viser.GuiButtonHandle, viser.GuiButtonHandle],
 ) -> EventsHandles:

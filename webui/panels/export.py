@@ -13,6 +13,7 @@ import viser
 
 from pipeline.io.export import FORMATS, KEYPOINTS3D_ARTIFACTS, ExportSelection, export_files, parse_frames
 from pipeline.io.export.write import bundle
+from webui.scope import Scope
 
 
 @dataclass
@@ -23,7 +24,7 @@ class ExportHandles:
     status: viser.GuiMarkdownHandle
 
 
-def make_export(server: viser.ViserServer) -> ExportHandles:
+def make_export(server: Scope) -> ExportHandles:
     """The Export folder: format (``--format`` names), frames (``FIRST:STOP``, empty = all), Download."""
     with server.gui.add_folder("Export"):
         names = tuple(FORMATS)
@@ -51,7 +52,7 @@ def export_download(
 
 def wire_export(
     h: ExportHandles,
-    server: viser.ViserServer,
+    server: Scope,
     session_dir: Path,
     names: Callable[[], dict[int, str]],
     source: Callable[[], str],

@@ -7,6 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 import viser
 
+from webui.scope import Scope
+
 
 @dataclass
 class ViewsHandles:
@@ -14,7 +16,7 @@ class ViewsHandles:
     align: dict[str, viser.GuiButtonHandle]
 
 
-def make_views(server: viser.ViserServer, camera_names: tuple[str, ...], sizes_wh: list[tuple[int, int]]) -> ViewsHandles:
+def make_views(server: Scope, camera_names: tuple[str, ...], sizes_wh: list[tuple[int, int]]) -> ViewsHandles:
     images: dict[str, viser.GuiImageHandle] = {}
     align: dict[str, viser.GuiButtonHandle] = {}
     for name, (w, h) in zip(camera_names, sizes_wh, strict=True):

@@ -18,6 +18,7 @@ from pipeline.schema.keypoints3d import Keypoints3D
 from webui.colors import IdentityPalette
 from webui.scene.body import BodyMeshCache
 from webui.scene.session_data import SessionData, frame_row
+from webui.scope import Scope
 
 
 def skeleton_segments(kp: Keypoints3D, row: int | None, person_index: int) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -66,7 +67,8 @@ class DisplayOptions:
 class PersonsScene:
     """Scene nodes of every person of a loaded session."""
 
-    server: viser.ViserServer
+    server: Scope
+    """The whole server (every client sees these nodes) or one client (its own nodes)."""
     data: SessionData
     palette: IdentityPalette
     body_cache: BodyMeshCache | None = None

@@ -1,9 +1,10 @@
-"""Route: start (or reuse) the caller's interactive viewer of a session (``webui.launcher``).
+"""Route: start (or reuse) the interactive viewer of a session (``webui.launcher``).
 
-Each viewer is a viser process on a loopback port, keyed by (session, role, user) and
-acting with an API token minted for that user (label ``viewer:<session>``, replaced at each
-start), so its edits carry the user's name and are checked against the user's role. The
-browser reaches it only through ``/viewer/{session}/`` (``viewer_proxy``).
+One viser process per session, on a loopback port, serves every signed-in user; each
+websocket the proxy opens to it carries a token minted for that user and that connection
+(``viewer_proxy``), so each client's edits carry its user's name and are checked against
+its user's role. The browser reaches it only through ``/viewer/{session}/``. A viewer
+without clients for ``Settings.viewer_idle_s`` exits and is started again on the next visit.
 """
 
 from __future__ import annotations
@@ -13,13 +14,11 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from fastapi import APIRouter, HTTPException, Request, status
-from sqlalchemy.engine import Engine
-from sqlmodel import Session
 from starlette.requests import HTTPConnection
 
-from server import crud
 from server.api.deps import CurrentUser, SessionDep, bout_dir, get_bout_or_404
-from server.models import Bout, User
+from server.core.config import Settings
+from server.models import Bout
 
 router = APIRouter(tags=["viewer"])
 
@@ -39,8 +38,8 @@ def local_api_url(conn: HTTPConnection) -> str:
     return f"http://{f'[{host}]' if ':' in host else host}:{port}/api"
 
 
-def ensure_viewer(engine: Engine, user: User, bout: Bout, api_url: str) -> int:
-    """Loopback port of ``user``'s viewer of ``bout`` (started when none runs).
+def ensure_viewer(settings: Settings, bout: Bout, api_url: str) -> int:
+    """Loopback port of the viewer of ``bout`` (started when none runs).
 
     ``HTTPException`` 503 when the viewer is not installed or does not start.
     """
@@ -49,17 +48,10 @@ def ensure_viewer(engine: Engine, user: User, bout: Bout, api_url: str) -> int:
     except ImportError as e:
         raise HTTPException(status_code=status.HTTP_503_SERVICE_UNAVAILABLE,
                             detail=f"the viewer is not available in this installation (webui.launcher: {e})") from e
-    assert bout.id is not None and user.id is not None
-    label = f"viewer:{bout.id}"
-
-    def mint() -> str:
-        with Session(engine, expire_on_commit=False) as db:
-            crud.revoke_tokens(db, user=user, label=label)  # the previous viewer's token, if any
-            return crud.issue_token(db, user=user, label=label)
-
+    assert bout.id is not None
     try:
-        url = launcher.start_viewer(session_id=str(bout.id), session_dir=bout_dir(bout), api_url=api_url, token=mint,
-                                    role=user.role, owner=f"user:{user.id}")
+        url = launcher.start_viewer(session_id=str(bout.id), session_dir=bout_dir(bout), api_url=api_url,
+                                    idle_s=settings.viewer_idle_s)
     except ValueError as e:
         raise HTTPException(status_code=status.HTTP_503_SERVICE_UNAVAILABLE, detail=str(e)) from e
     port = urlsplit(str(url)).port
@@ -70,8 +62,8 @@ def ensure_viewer(engine: Engine, user: User, bout: Bout, api_url: str) -> int:
 
 @router.post("/sessions/{session_id}/viewer")
 def open_viewer(request: Request, db: SessionDep, user: CurrentUser, session_id: int) -> dict[str, Any]:
-    """Start (or reuse) the caller's viewer of this session; returns its URL under this server
+    """Start (or reuse) the viewer of this session; returns its URL under this server
     (``/viewer/{id}/``), which a browser opens after signing in at ``/login``."""
     bout = get_bout_or_404(db, session_id)
-    ensure_viewer(request.app.state.engine, user, bout, local_api_url(request))
+    ensure_viewer(request.app.state.settings, bout, local_api_url(request))
     return {"url": str(request.base_url).rstrip("/") + viewer_path(session_id)}

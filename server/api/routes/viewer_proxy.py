@@ -6,8 +6,12 @@ at ``/viewer/3/`` connects to ``ws(s)://<host>/viewer/3``; both are served here,
 viser process itself listens on 127.0.0.1 only. Both the page (and its files) and the
 websocket need the login cookie: without it the page redirects to ``/login`` (other files
 get 401) and the websocket handshake is refused (403). A cross-origin websocket is refused
-too. Each user gets their own viewer, which acts with a token of that user
-(``viewer.ensure_viewer``), so a coach's viewer cannot edit.
+too. One viewer process serves every user of a session; for each websocket the proxy
+mints a token of the signed-in user (``ApiToken`` labelled ``viewer:<session>``), sends it
+to the viewer in the ``x-cornerman-viewer-token`` header of its own handshake with viser
+(loopback only, never in a URL), and revokes it when the connection ends. The viewer acts
+for that client with that token only, so a coach's client cannot edit while an annotator's
+client of the same viewer can (``docs/design/viewer-sessions.md``).
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import httpx
 import websockets
 from fastapi import APIRouter, HTTPException, Request, WebSocket, WebSocketDisconnect, status
 from fastapi.responses import RedirectResponse, Response
+from sqlalchemy.engine import Engine
 from sqlmodel import Session
 from starlette.concurrency import run_in_threadpool
 from websockets.asyncio.client import ClientConnection, connect
@@ -29,6 +34,7 @@ from websockets.typing import Subprotocol
 from server import crud
 from server.api.deps import (
     SESSION_COOKIE,
+    VIEWER_LABEL_PREFIX,
     CookieUser,
     SessionDep,
     get_bout_or_404,
@@ -46,6 +52,8 @@ PASSED_RESPONSE_HEADERS: tuple[str, ...] = ("content-type", "content-encoding", 
 WS_MAX_MESSAGE_BYTES = 64 * 1024 * 1024
 """Largest websocket message relayed from the viewer (viser sends images and meshes; its own limit is 50 MiB)."""
 POLICY_VIOLATION = 1008
+VIEWER_TOKEN_HEADER = "x-cornerman-viewer-token"
+"""Handshake header of the proxy's websocket to viser carrying the connection's token (``webui.clients.TOKEN_HEADER``)."""
 
 
 def _login_redirect(session_id: int) -> RedirectResponse:
@@ -67,7 +75,7 @@ async def viewer_http(request: Request, db: SessionDep, user: CookieUser, sessio
             return _login_redirect(session_id)
         raise HTTPException(status_code=status.HTTP_401_UNAUTHORIZED, detail="sign in at /login to open the viewer")
     bout = get_bout_or_404(db, session_id)
-    port = await run_in_threadpool(ensure_viewer, request.app.state.engine, user, bout, local_api_url(request))
+    port = await run_in_threadpool(ensure_viewer, request.app.state.settings, bout, local_api_url(request))
     url = f"http://127.0.0.1:{port}/{path}"
     headers = {"accept-encoding": request.headers.get("accept-encoding", "identity")}
     async with httpx.AsyncClient(timeout=30.0) as client:
@@ -84,6 +92,17 @@ async def viewer_http(request: Request, db: SessionDep, user: CookieUser, sessio
     passed = {k: v for k, v in upstream.headers.items() if k.lower() in PASSED_RESPONSE_HEADERS}
     passed["x-content-type-options"] = "nosniff"
     return Response(content=body if request.method == "GET" else b"", status_code=upstream.status_code, headers=passed)
+
+
+def _mint_connection_token(engine: Engine, user: User, session_id: int) -> str:
+    """A token of ``user`` for one viewer connection (revoked by ``_revoke`` when it ends)."""
+    with Session(engine, expire_on_commit=False) as db:
+        return crud.issue_token(db, user=user, label=f"{VIEWER_LABEL_PREFIX}{session_id}")
+
+
+def _revoke(engine: Engine, token: str) -> None:
+    with Session(engine, expire_on_commit=False) as db:
+        crud.revoke_token(db, token=token)
 
 
 def _ws_user_and_bout(ws: WebSocket, session_id: int) -> tuple[User | None, Bout | None]:
@@ -105,22 +124,26 @@ async def viewer_websocket(websocket: WebSocket, session_id: int) -> None:
     if user is None or bout is None:  # closing before accept: the handshake gets HTTP 403
         await websocket.close(code=POLICY_VIOLATION, reason="sign in at /login" if user is None else "no such session")
         return
+    engine = websocket.app.state.engine
     try:
-        port = await run_in_threadpool(ensure_viewer, websocket.app.state.engine, user, bout, local_api_url(websocket))
+        port = await run_in_threadpool(ensure_viewer, websocket.app.state.settings, bout, local_api_url(websocket))
     except HTTPException as e:
         log.warning("viewer of session %s for %s unavailable: %s", session_id, user.name, e.detail)
         await websocket.close(code=1011, reason="viewer unavailable")
         return
     offered = [Subprotocol(p) for p in websocket.scope.get("subprotocols", [])]
+    token = await run_in_threadpool(_mint_connection_token, engine, user, session_id)
     try:
         upstream_cm = connect(f"ws://127.0.0.1:{port}/", subprotocols=offered or None, max_size=WS_MAX_MESSAGE_BYTES,
-                              compression=None, open_timeout=30)
+                              compression=None, open_timeout=30, additional_headers={VIEWER_TOKEN_HEADER: token})
         async with upstream_cm as upstream:
             await websocket.accept(subprotocol=upstream.subprotocol)
             await _relay(websocket, upstream)
     except (OSError, websockets.exceptions.InvalidHandshake) as e:
         log.warning("viewer of session %s for %s refused the websocket: %s", session_id, user.name, e)
         await websocket.close(code=1011, reason="viewer unavailable")
+    finally:
+        await run_in_threadpool(_revoke, engine, token)
 
 
 async def _relay(client: WebSocket, upstream: ClientConnection) -> None:

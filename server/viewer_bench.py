@@ -1,0 +1,210 @@
+"""Memory of one session's viewer serving several clients (``cornerman bench viewer``).
+
+Starts the server (uvicorn, no worker) on a temporary home with one session, signs in, opens
+the session's viewer through the app (``/viewer/{id}/``) and connects ``n_clients``
+websocket clients to it through the proxy, each as viser's browser client does (the
+subprotocol, then a camera message, after which the viewer builds that client's view). It
+reports the viewer process's resident memory (``VmRSS``) with no client, one client and all
+of them, the memory per client, the peak of its child processes (the body mesh worker) and
+its CPU while the clients are connected and paused. Target: ≤ 400 MB per viewer with 5 clients.
+
+``session``: an already-run session folder to serve (e.g. the demo bout with fit and physics,
+whose body meshes dominate); default: a synthetic bout with the 2D/3D stages only.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import os
+import shutil
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+from server.loadtest import running_server
+
+TARGET_RSS_MB = 400.0
+"""Issue 40's budget for one session's viewer with 5 clients."""
+VISER_PROTOCOL = f"viser-v{importlib.metadata.version('viser')}"
+
+
+def camera_message() -> bytes:
+    """The first message viser's browser client sends (its 3D camera); the viewer counts a client from it."""
+    import msgspec
+    from viser._messages import ViewerCameraMessage
+
+    msg = ViewerCameraMessage(wxyz=(1.0, 0.0, 0.0, 0.0), position=(0.0, -5.0, 2.0), fov=1.0, near=0.01, far=100.0,
+                              image_height=720, image_width=1280, look_at=(0.0, 0.0, 1.0), up_direction=(0.0, 0.0, 1.0))
+    return msgspec.msgpack.encode(msg.as_serializable_dict())
+
+
+@dataclass
+class WsClient:
+    """A viser websocket client that reads (and drops) everything the viewer sends."""
+
+    conn: Any
+    received_bytes: int = 0
+    messages: int = 0
+    _thread: threading.Thread | None = field(default=None, repr=False)
+
+    def _drain(self) -> None:
+        try:
+            while True:
+                data = self.conn.recv()
+                self.received_bytes += len(data)
+                self.messages += 1
+        except Exception:  # noqa: BLE001  (closed either way: by us, the proxy or the viewer)
+            return
+
+    def close(self) -> None:
+        self.conn.close()
+        if self._thread is not None:
+            self._thread.join(5.0)
+
+
+def open_client(ws_url: str, headers: dict[str, str] | None = None, timeout_s: float = 120.0) -> WsClient:
+    """Connect to a viser websocket (directly or through ``/viewer/{id}``), announce a camera, keep reading."""
+    from websockets.sync.client import connect
+    from websockets.typing import Subprotocol
+
+    conn = connect(ws_url, subprotocols=[Subprotocol(VISER_PROTOCOL)], additional_headers=headers or {},
+                   open_timeout=timeout_s, max_size=None)
+    conn.send(camera_message())
+    c = WsClient(conn)
+    c._thread = threading.Thread(target=c._drain, daemon=True)
+    c._thread.start()
+    return c
+
+
+def viewer_pids(session_dir: Path) -> list[int]:
+    """Live ``webui.app`` processes serving ``session_dir`` (from /proc)."""
+    out = []
+    want = str(Path(session_dir).resolve())
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            args = (d / "cmdline").read_bytes().decode().split("\0")
+        except OSError:
+            continue
+        if "webui.app" in args and want in args:
+            out.append(int(d.name))
+    return out
+
+
+def rss_mb(pid: int) -> float:
+    """Resident memory of ``pid`` in MB (``VmRSS``); 0 when it is gone."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return 0.0
+
+
+def children(pid: int) -> list[int]:
+    """Child processes of ``pid`` (started by any of its threads)."""
+    out: list[int] = []
+    try:
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            out += [int(p) for p in (task / "children").read_text().split()]
+    except OSError:
+        pass
+    return out
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU seconds used by ``pid`` so far."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _settle(pid: int, seconds: float, peak: list[float]) -> float:
+    """Wait ``seconds`` sampling the process and its children; RSS at the end."""
+    t_end = time.monotonic() + seconds
+    while time.monotonic() < t_end:
+        peak[0] = max(peak[0], rss_mb(pid) + sum(rss_mb(c) for c in children(pid)))
+        time.sleep(0.25)
+    return rss_mb(pid)
+
+
+def run_bench(n_clients: int = 5, session: str = "", settle_s: float = 4.0, mesh_timeout_s: float = 300.0,
+              home: Path | None = None) -> list[dict[str, Any]]:
+    """Start a server with one session, connect ``n_clients`` to its viewer, report memory rows."""
+    from server.cli import create_user
+    from server.demo import make_session
+
+    if n_clients < 1:
+        raise ValueError(f"bench viewer: n_clients must be >= 1, got {n_clients}")
+    if session and not (Path(session) / "session.json").is_file():
+        raise ValueError(f"bench viewer: session={session}: no session.json there")
+    tmp = Path(tempfile.mkdtemp(prefix="cornerman-viewer-bench-")) if home is None else home
+    try:
+        data = tmp / "data"
+        if session:
+            src = Path(session).resolve()  # the server copies it into its home
+            data = src.parent
+        else:
+            src = make_session(data / "bout", n_frames=150, n_cameras=3, stages=("detect2d", "track", "associate", "triangulate"))
+        server_home = tmp / "home"
+        token = create_user("bench", "admin", home=server_home)
+        with running_server(server_home, n_workers=0, allowed_roots=[data]) as srv:
+            api = httpx.Client(base_url=srv.url + "/api", headers={"Authorization": f"Bearer {token}"}, timeout=60)
+            r = api.post("/sessions/from-folder", json={"path": str(src), "name": "bench"})
+            if r.status_code != 201:
+                raise ValueError(f"bench viewer: session not created: {r.status_code} {r.text[:300]}")
+            sid, folder = int(r.json()["id"]), Path(r.json()["folder"])
+            if session:  # the server's copy has the inputs only: bring the results the viewer shows
+                shutil.copytree(src / "artifacts", folder / "artifacts", dirs_exist_ok=True)
+            web = httpx.Client(base_url=srv.url, timeout=300)
+            r = web.post("/login", data={"name": "bench", "token": token}, follow_redirects=False)
+            if r.status_code != 303:
+                raise ValueError(f"bench viewer: sign-in failed: {r.status_code}")
+            cookie = web.cookies.get("cornerman_session") or ""
+            t0 = time.monotonic()
+            if web.get(f"/viewer/{sid}/").status_code != 200:
+                raise ValueError("bench viewer: the viewer page did not load")
+            start_s = time.monotonic() - t0
+            (pid,) = viewer_pids(folder)
+            peak = [0.0]
+            t_end = time.monotonic() + mesh_timeout_s
+            while children(pid) and time.monotonic() < t_end:  # the body mesh worker, when there is a fit
+                _settle(pid, 0.5, peak)
+            rss0 = _settle(pid, settle_s, peak)
+            ws_url = srv.url.replace("http://", "ws://") + f"/viewer/{sid}"
+            headers = {"Cookie": f"cornerman_session={cookie}", "Origin": srv.url}
+            clients = [open_client(ws_url, headers)]
+            rss1 = _settle(pid, settle_s, peak)
+            clients += [open_client(ws_url, headers) for _ in range(n_clients - 1)]
+            rss_n = _settle(pid, settle_s, peak)
+            c0 = cpu_s(pid)
+            rss_n = max(rss_n, _settle(pid, settle_s, peak))
+            cpu_pct = 100.0 * (cpu_s(pid) - c0) / settle_s
+            received = sum(c.received_bytes for c in clients) / len(clients) / 1e6
+            for c in clients:
+                c.close()
+            rss_after = _settle(pid, settle_s, peak)
+            api.close()
+            web.close()
+        rows = [
+            {"measure": "viewer start (first page, s)", "value": round(start_s, 1)},
+            {"measure": "viewer RSS, no client (MB)", "value": round(rss0, 1)},
+            {"measure": "viewer RSS, 1 client (MB)", "value": round(rss1, 1)},
+            {"measure": f"viewer RSS, {n_clients} clients (MB)", "value": round(rss_n, 1), "target": f"<= {TARGET_RSS_MB:g}",
+             "ok": rss_n <= TARGET_RSS_MB},
+            {"measure": "RSS per client (MB)", "value": round((rss_n - rss0) / n_clients, 1)},
+            {"measure": "peak RSS with child processes (MB)", "value": round(peak[0], 1)},
+            {"measure": f"viewer CPU, {n_clients} paused clients (% of a core)", "value": round(cpu_pct, 1)},
+            {"measure": "sent per client at connect (MB)", "value": round(received, 2)},
+            {"measure": "viewer RSS after the clients left (MB)", "value": round(rss_after, 1)},
+        ]
+        return rows
+    finally:
+        if home is None:
+            shutil.rmtree(tmp, ignore_errors=True)

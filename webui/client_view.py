@@ -1,0 +1,338 @@
+"""One client's view of the shared viewer: its own frame, playback, speed, layers, panels and persons.
+
+A ``ClientView`` is built for each browser that connects (``ViewerApp.connect``) on that
+client's GUI and scene (``viser.ClientHandle.gui`` / ``.scene``), or on the server itself
+(every client, one shared view) in tests and scripts. Session data, camera frames, body
+meshes and physics geoms belong to the ``ViewerApp`` and are shared by every view. One
+thread per view renders its frame and advances its playback; ``close()`` (the client left)
+stops both.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import TYPE_CHECKING, Any, cast
+
+import viser
+
+from webui.analysis import compute_series
+from webui.clients import ClientUser
+from webui.editing import (
+    EditHistory,
+    Selection,
+    assign_edit,
+    describe_selection,
+    invalid_edit,
+    split_edit,
+    swap_edit,
+)
+from webui.frames import draw_overlay, overlay_for
+from webui.jobs import JobWatcher, job_fraction, job_summary
+from webui.panels.annotate import NO_TRACK, AnnotateHandles, make_annotate, parse_track_label, track_label
+from webui.panels.display import label_to_source, make_display, source_options
+from webui.panels.events import follow_frame, make_event_rows, make_events, set_events, wire_events
+from webui.panels.export import make_export, wire_export
+from webui.panels.plots import make_plots, update_plots
+from webui.panels.timeline import make_timeline, set_problems
+from webui.panels.views import make_views
+from webui.scene.persons import DisplayOptions, PersonsScene
+from webui.scope import Scope
+
+if TYPE_CHECKING:
+    from webui.app import ViewerApp
+
+log = logging.getLogger(__name__)
+
+PLAY_TICK_S = 0.02
+"""How often a playing view checks whether the next frame is due (s)."""
+
+
+class ClientView:
+    """GUI, persons and playback of one client (or of every client when ``scope`` is the server)."""
+
+    def __init__(self, app: ViewerApp, scope: Scope, user: ClientUser) -> None:
+        self.app, self.scope, self.user = app, scope, user
+        self.frame = 0
+        self.rendered = 0
+        """Frames drawn so far (tests and the bench)."""
+        self._stop = threading.Event()
+        self._render_wanted = threading.Event()
+        self._lock = threading.RLock()  # render vs rebuild after a reload
+        self._watchers: list[JobWatcher] = []
+        can_edit = user.can_edit and app.session_id is not None
+        self.history = EditHistory(user.api, app.session_id) if can_edit and user.api is not None and app.session_id else None
+        data, palette = app.data, app.palette
+        # timeline.py / plots.py are typed for a ViserServer but use only ``.gui``, which a client has too.
+        as_server = cast(viser.ViserServer, scope)
+        who = f" — signed in as **{user.name}** ({user.role})" if user.name else ""
+        scope.gui.add_markdown(f"**{data.config.name}** — {app.legend()}{who}")
+        self.timeline = make_timeline(as_server, data.n_frames)
+        everyone = [(p, palette.name(p)) for p in (data.person_ids or [0, 1])]
+        event_rows = make_event_rows(scope, everyone, data.n_frames)
+        tabs = scope.gui.add_tab_group()
+        with tabs.add_tab("Cameras"):
+            self.views = make_views(scope, data.camera_names, app.image_sizes())
+        self.annotate: AnnotateHandles | None = None
+        if self.history is not None:
+            with tabs.add_tab("Edit"):
+                athletes = [(p, palette.name(p)) for p in (data.person_ids or [0, 1])[:2]]
+                self.annotate = make_annotate(scope, data.camera_names, athletes)
+        with tabs.add_tab("Plots"):
+            self.plots = make_plots(as_server, compute_series(data, app.default_source()), palette)
+        with tabs.add_tab("Events"):
+            self.events = make_events(scope, [n for _, n in everyone], event_rows)
+        with tabs.add_tab("Display"):
+            self.display = make_display(scope, list(data.keypoints))
+        with tabs.add_tab("Export"):
+            self.export = make_export(scope)
+        self.opts = DisplayOptions(source=label_to_source(self.display.source.value))
+        self.persons = PersonsScene(scope, data, palette, app.body_cache, app.physics_geoms)
+        self.persons.build()
+        set_problems(self.timeline, app.problems, data.n_frames)
+        set_events(self.events, app.events_view(), data.n_frames)
+        self._wire()
+        self._thread = threading.Thread(target=self._loop, name=f"view-{self.name}", daemon=True)
+        self._thread.start()
+        self.request_render()
+
+    # ------------------------------------------------------------------ state
+    @property
+    def name(self) -> str:
+        """For logs: the client id and user (``server`` for a view shared by every client)."""
+        cid = getattr(self.scope, "client_id", None)
+        return ("server" if cid is None else f"client {cid}") + (f" ({self.user.name})" if self.user.name else "")
+
+    @property
+    def playing(self) -> bool:
+        return bool(self.timeline.play.value) and not self._stop.is_set()
+
+    @property
+    def alive(self) -> bool:
+        """Whether the view's render / playback thread still runs."""
+        return self._thread.is_alive()
+
+    def selection(self) -> Selection:
+        if self.annotate is None:
+            return Selection(self.app.data.camera_names[0], None, self.frame)
+        return Selection(self.annotate.view.value, parse_track_label(self.annotate.track.value), self.frame)
+
+    def set_frame(self, frame: int) -> None:
+        self.timeline.frame.value = int(frame)  # type: ignore[misc]  # its callback renders
+
+    # ------------------------------------------------------------------ rendering
+    def request_render(self) -> None:
+        self._render_wanted.set()
+
+    def _loop(self) -> None:
+        """Render on request (latest wins) and advance the frame while Play is on, until closed."""
+        last = time.monotonic()
+        acc = 0.0
+        while not self._stop.is_set():
+            playing = bool(self.timeline.play.value)
+            self._render_wanted.wait(PLAY_TICK_S if playing else 0.25)
+            if self._stop.is_set():
+                break
+            now = time.monotonic()
+            dt, last = now - last, now
+            if playing and self.timeline.play.value:  # Pause pressed during the wait: no step
+                acc += dt * self.app.data.fps * self.timeline.speed_factor
+                step = int(acc)
+                if step >= 1:
+                    acc -= step
+                    self.set_frame((self.frame + step) % self.app.data.n_frames)
+            else:
+                acc = 0.0
+            if self._render_wanted.is_set():
+                self._render_wanted.clear()
+                try:
+                    self.render(self.frame)
+                except Exception:  # keep the viewer alive; the traceback goes to the log
+                    if not self._stop.is_set():
+                        log.exception("%s: rendering frame %d failed", self.name, self.frame)
+
+    def render(self, frame: int) -> None:
+        """Draw ``frame`` in this view: 3D persons, camera images, selection and info."""
+        app = self.app
+        with self._lock:
+            data = self.persons.data
+            self.persons.update(frame, self.opts)  # one atomic scene update
+            sel_track = None
+            if self.annotate is not None:
+                self._refresh_track_options(frame)
+                sel = self.selection()
+                sel_track = sel.track
+                names = {p: app.palette.name(p) for p in data.person_ids}
+                self.annotate.selection.content = describe_selection(data, sel, names)
+            images = app.provider.frames(frame)
+            for v, name in enumerate(data.camera_names):
+                img = images[v]
+                ov = overlay_for(data, v, frame, self.opts.source)
+                st = sel_track if (self.annotate is not None and self.annotate.view.value == name) else None
+                draw_overlay(img, ov, app.provider.scale(v), app.palette, st)
+                self.views.images[name].image = img
+            problems = app.problems
+            kinds = problems.kinds_at(frame) if frame < problems.n_frames else []
+            flag = f" — ⚠ {', '.join(kinds)}" if kinds else ""
+            self.timeline.info.content = f"frame {frame} / {data.n_frames - 1} ({frame / data.fps:.2f} s){flag}"
+            self.rendered += 1
+
+    def _refresh_track_options(self, frame: int) -> None:
+        assert self.annotate is not None
+        data, palette = self.persons.data, self.app.palette
+        v = data.rig.index(self.annotate.view.value)
+        rows = data.det_rows(v, frame)
+        opts = [NO_TRACK]
+        if data.tracks is not None:
+            for r, p in zip(rows, data.person_of_rows(rows), strict=True):
+                tid = int(data.tracks.track_id[r])
+                if tid >= 0:
+                    opts.append(track_label(tid, palette.name(int(p))))
+        current = parse_track_label(self.annotate.track.value)
+        keep = next((o for o in opts[1:] if parse_track_label(o) == current), None) if current is not None else None
+        if tuple(opts) != tuple(self.annotate.track.options):
+            self.annotate.track.options = tuple(opts)
+        # Keep the selected track while it is visible; otherwise select the first one.
+        want = keep or (opts[1] if len(opts) > 1 else NO_TRACK)
+        if self.annotate.track.value != want:
+            self.annotate.track.value = want  # type: ignore[misc]
+
+    def on_reload(self) -> None:
+        """Rebuild what depends on the results after ``ViewerApp.reload`` (keeps the frame and selection)."""
+        app = self.app
+        data = app.data
+        with self._lock, self.scope.atomic():
+            self.persons.data = data
+            self.persons.body_cache, self.persons.physics_geoms = app.body_cache, app.physics_geoms
+            self.persons.build()
+            self.display.source.options = source_options(list(data.keypoints))
+            set_problems(self.timeline, app.problems, data.n_frames)
+            set_events(self.events, app.events_view(), data.n_frames)
+            update_plots(self.plots, compute_series(data, self.opts.source), app.palette)
+        self.request_render()
+
+    # ------------------------------------------------------------------ callbacks
+    def _wire(self) -> None:
+        tl, disp, app = self.timeline, self.display, self.app
+
+        @tl.frame.on_update
+        def _(_: Any) -> None:
+            self.frame = int(tl.frame.value)
+            follow_frame(self.events, self.frame)
+            self.request_render()
+
+        wire_events(self.events, app.events_view, lambda: self.frame, self.set_frame, lambda: app.data.n_frames)
+        wire_export(self.export, self.scope, app.session_dir,
+                    lambda: {p: app.palette.name(p) for p in app.data.person_ids}, lambda: self.opts.source)
+
+        @tl.next_problem.on_click
+        def _(_: Any) -> None:
+            nxt = app.problems.next_after(self.frame, tl.kind)
+            if nxt is not None:
+                self.set_frame(nxt)
+
+        @disp.source.on_update
+        def _(_: Any) -> None:
+            self.opts.source = label_to_source(disp.source.value)
+            update_plots(self.plots, compute_series(app.data, self.opts.source), app.palette)
+            self.request_render()
+
+        for cb in (disp.skeleton, disp.body, disp.physics):
+            cb.on_update(lambda _: self._set_layers())
+
+        @disp.reload.on_click
+        def _(_: Any) -> None:
+            app.reload()
+
+        for name in app.data.camera_names:
+            self.views.align[name].on_click(app.aligner(app.data.rig.index(name)))
+        if self.annotate is not None:
+            self._wire_annotate(self.annotate)
+
+    def _set_layers(self) -> None:
+        self.opts.show_skeleton = self.display.skeleton.value
+        self.opts.show_body = self.display.body.value
+        self.opts.show_physics = self.display.physics.value
+        self.request_render()
+
+    def _wire_annotate(self, a: AnnotateHandles) -> None:
+        a.view.on_update(lambda _: self.request_render())
+        a.track.on_update(lambda _: self.request_render())
+
+        def assigner(pid: int) -> Any:
+            def cb(_: Any) -> None:
+                self._submit(lambda: assign_edit(self.app.data, self.selection(), pid, a.from_here.value))
+
+            return cb
+
+        for pid, button in a.assign.items():
+            button.on_click(assigner(pid))
+        ids = list(a.assign)
+
+        def do_swap() -> Any:
+            if len(ids) < 2:
+                raise ValueError("a swap needs two athletes")
+            return swap_edit(self.selection(), ids[0], ids[1], a.swap_scope.value == "all views")
+
+        a.swap.on_click(lambda _: self._submit(do_swap))
+        a.split.on_click(lambda _: self._submit(lambda: split_edit(self.selection())))
+        a.invalid.on_click(lambda _: self._submit(lambda: invalid_edit(self.selection())))
+        a.undo.on_click(lambda _: self._history_call("undo"))
+        a.redo.on_click(lambda _: self._history_call("redo"))
+
+    def _submit(self, make_edit: Any) -> None:
+        assert self.history is not None and self.annotate is not None
+        try:
+            edit = make_edit()
+            res = self.history.submit(edit)
+        except (ValueError, RuntimeError) as e:  # ApiError is a ValueError
+            self.annotate.status.content = f"Edit refused: {e}"
+            return
+        self._after_change(f"Saved {edit.kind} (annotation {res['annotation']['id']})", res)
+
+    def _history_call(self, which: str) -> None:
+        assert self.history is not None and self.annotate is not None
+        try:
+            res = self.history.undo() if which == "undo" else self.history.redo()
+        except ValueError as e:
+            self.annotate.status.content = f"{which} failed: {e}"
+            return
+        if res is None:
+            self.annotate.status.content = f"Nothing to {which}."
+            return
+        self._after_change(f"{which.capitalize()} of annotation {res['annotation']['id']}", res)
+
+    def _after_change(self, msg: str, res: dict) -> None:
+        assert self.annotate is not None and self.user.api is not None
+        a = self.annotate
+        job = res.get("job")
+        stale = res.get("stale_from")
+        a.status.content = f"{msg}; stale from **{stale}**." + (" Re-run queued." if job else "")
+        if not job:
+            return
+        a.progress.visible = True
+        a.progress.value = 0.0  # type: ignore[misc]
+
+        def on_update(j: dict) -> None:
+            a.progress.value = 100.0 * job_fraction(j)  # type: ignore[misc]
+            a.status.content = f"{msg}. {job_summary(j)}"
+
+        def on_end(j: dict) -> None:
+            a.progress.value = 100.0  # type: ignore[misc]
+            if j.get("status") == "done":
+                self.app.reload()
+                a.status.content = f"{msg}. {job_summary(j)} — results reloaded."
+            else:
+                a.status.content = f"{msg}. {job_summary(j)}"
+
+        self._watchers.append(JobWatcher(self.user.api, job["id"], on_update, on_end).start())
+
+    def close(self, timeout_s: float = 2.0) -> None:
+        """Stop this view's playback, rendering and job watchers (its client left); waits for its thread."""
+        self._stop.set()
+        self._render_wanted.set()
+        for w in self._watchers:
+            w.stop()
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout_s)
