@@ -34,6 +34,7 @@ BENCHES = {
     "footage": "pipeline.bench.footage",
     "analytics": "pipeline.bench.analytics",
     "server": "server.loadtest",
+    "viewer": "server.viewer_bench",
 }
 
 
