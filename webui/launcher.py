@@ -20,6 +20,7 @@ import subprocess
 import sys
 import threading
 import time
+import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,9 +50,10 @@ def free_port(host: str = "127.0.0.1") -> int:
 
 
 def _listening(host: str, port: int) -> bool:
+    """Whether the viewer answers HTTP (a bare connect-and-close would log a traceback in viser's log)."""
     try:
-        with socket.create_connection((host, port), timeout=0.5):
-            return True
+        with urllib.request.urlopen(f"http://{host}:{port}/", timeout=2.0) as r:
+            return bool(r.status == 200)
     except OSError:
         return False
 
