@@ -42,6 +42,19 @@ from pipeline.backends.mujoco.config import (
 from pipeline.schema.config_types import check_field_types
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import BodyFit, PhysicsResult
+from pipeline.stages.physics_incremental import (
+    PhysicsCheckpoints,
+    PhysicsPrevious,
+    body_digest,
+    checkpoints_of,
+    first_changed,
+    input_digests,
+    layout_mismatch,
+    reference_digests,
+    reference_reach,
+    replan_window,
+    skeletons_from_json,
+)
 
 if TYPE_CHECKING:
     from pipeline.backends.mujoco.reference import Scene
@@ -73,6 +86,10 @@ class PhysicsConfig:
     around the fist; 0: anny's open hand."""
     max_frames: int = 0
     """Process only the first N frames (>= 0; 0 = all)."""
+    incremental: bool = True
+    """Re-use the previous run (same config and code, same frames and persons): keep its
+    humanoids and every window whose reference frames did not change, re-plan the rest
+    (``pipeline.stages.physics_incremental``); False: always run in full."""
     humanoid: HumanoidConfig = field(default_factory=HumanoidConfig)
     """The simulated bodies and the scene (servos, contacts, floor, MuJoCo steps per frame)."""
     residual: ResidualConfig = field(default_factory=ResidualConfig)
@@ -110,10 +127,13 @@ class PhysicsConfig:
 @dataclass(frozen=True)
 class PhysicsInputs:
     """keypoints: the fitted joints (``source="fit"``, world z-up metres);
-    bodyfit: the fitted body model (optional; its person ids must match)."""
+    bodyfit: the fitted body model (optional; its person ids must match);
+    previous: the stage's previous run on earlier inputs, for an incremental re-run
+    (``PhysicsConfig.incremental``; None: run in full)."""
 
     keypoints: Keypoints3D
     bodyfit: BodyFit | None = None
+    previous: PhysicsPrevious | None = None
 
 
 @dataclass(frozen=True)
@@ -122,6 +142,8 @@ class PhysicsOutput:
     keypoints: Keypoints3D
     mjcf: str
     stats: dict[str, Any]
+    checkpoints: PhysicsCheckpoints | None = None
+    """What a later incremental re-run needs (None for ``mode="single"``)."""
 
 
 def _select_persons(kp: Keypoints3D) -> list[int]:
@@ -131,13 +153,9 @@ def _select_persons(kp: Keypoints3D) -> list[int]:
     return rows
 
 
-def build_skeletons(
-    kp: Keypoints3D, rows: list[int], bodyfit: BodyFit | None, cfg: PhysicsConfig
-) -> tuple[list[Skeleton], str]:
-    """One rest skeleton per keypoint person row, and which builder was used
-    (``"bodyfit"`` or ``"keypoints"``; see ``PhysicsConfig.skeleton``)."""
-    from pipeline.backends.mujoco.skeleton import skeleton_from_keypoints
-
+def skeleton_source(kp: Keypoints3D, rows: list[int], bodyfit: BodyFit | None, cfg: PhysicsConfig) -> str:
+    """Why the humanoids of these rows cannot be built from ``bodyfit`` ("" when they
+    are; see ``PhysicsConfig.skeleton``)."""
     pids = [int(kp.person_ids[r]) for r in rows]
     why = ""
     if cfg.skeleton != "bodyfit":
@@ -151,6 +169,18 @@ def build_skeletons(
         lacking = [p for p in pids if p not in fit_ids or not bodyfit.valid[:, fit_ids.index(p)].any()]
         if lacking:
             why = f"BodyFit has no valid fit of persons {lacking}"
+    return why
+
+
+def build_skeletons(
+    kp: Keypoints3D, rows: list[int], bodyfit: BodyFit | None, cfg: PhysicsConfig
+) -> tuple[list[Skeleton], str]:
+    """One rest skeleton per keypoint person row, and which builder was used
+    (``"bodyfit"`` or ``"keypoints"``; see ``PhysicsConfig.skeleton``)."""
+    from pipeline.backends.mujoco.skeleton import skeleton_from_keypoints
+
+    pids = [int(kp.person_ids[r]) for r in rows]
+    why = skeleton_source(kp, rows, bodyfit, cfg)
     if not why:
         from pipeline.backends.anny.humanoid import skeleton_from_bodyfit
 
@@ -303,11 +333,27 @@ def _run(
         log.warning(msg)
     rows = _select_persons(kp)
     pids = [int(kp.person_ids[r]) for r in rows]
-    skels, skeleton_kind = build_skeletons(kp, rows, inputs.bodyfit, cfg)
+    in_digest = input_digests(kp, inputs.bodyfit)
+    reach = reference_reach(cfg.reference.schedule and cfg.humanoid.substeps > 0, cfg.reference.feedforward_smooth_frames)
+    prev, why = _previous_or_why(inputs, kp, pids, cfg, in_digest, reach)
+    skeleton_kind = "keypoints" if skeleton_source(kp, rows, inputs.bodyfit, cfg) else "bodyfit"
+    body = body_digest(skeleton_kind, pids, inputs.bodyfit)
     hcfg, rcfg, res_act = cfg.humanoid, cfg.reference, residual_actuators(cfg)
     sole_lift = max(hcfg.floor_margin_m - 0.001, 0.0)
     foot_offsets_mm = 0.0
-    if rcfg.flat_feet and rcfg.calibrate_foot_sites:
+    scene = None
+    if prev is not None and prev.checkpoints.body_digest != body:
+        prev, why = None, "the humanoids' body fit shapes changed"
+    if prev is not None:  # the previous humanoids, kept (``physics_incremental``)
+        skels = skeletons_from_json(prev.checkpoints.skeletons_json)
+        foot_offsets_mm = prev.checkpoints.foot_site_offset_mm_mean
+        scene = mp.build_scene(skels, pids, kp.fps, kp.joint_names, hcfg, res_act)
+        if scene.mjcf != prev.mjcf:
+            prev, scene, why = None, None, "the rebuilt humanoids differ from the stored scene"
+    sole = prev.checkpoints.sole_m if prev is not None else mp.sole_heights_m(kp, rows)
+    if scene is None:
+        skels, skeleton_kind = build_skeletons(kp, rows, inputs.bodyfit, cfg)
+    if scene is None and rcfg.flat_feet and rcfg.calibrate_foot_sites:
         from pipeline.backends.mujoco.foot_sites import move_sites, planted_site_offsets
 
         offs = planted_site_offsets(mp.build_scene(skels, pids, kp.fps, kp.joint_names, hcfg, res_act), kp, rows, sole_lift_m=sole_lift)
@@ -315,7 +361,8 @@ def _run(
         moved = [float(np.linalg.norm(v)) for o in offs for v in o.values()]
         foot_offsets_mm = 1000.0 * float(np.mean(moved)) if moved else 0.0
         log.info("physics: foot sites moved onto the planted keypoints by %.1f mm on average (%d sites)", foot_offsets_mm, len(moved))
-    scene = mp.build_scene(skels, pids, kp.fps, kp.joint_names, hcfg, res_act)
+    if scene is None:
+        scene = mp.build_scene(skels, pids, kp.fps, kp.joint_names, hcfg, res_act)
     groups = [list(range(len(rows)))] if cfg.mode == "multi" else [[i] for i in range(len(rows))]
     F = kp.n_frames
     qpos = np.zeros((F, scene.model.nq))
@@ -326,20 +373,33 @@ def _run(
     agg: dict[str, float] = {"windows": 0, "windows_with_residual": 0, "iterations": 0, "resets": 0, "kinematic_frames": 0}
     secs: dict[str, float] = {}
     done = [0]
+    ref_digest = np.zeros(0, dtype=np.uint64)
+    first_ref_change, reused_frames, bout = -1, 0, None
     for g in groups:
         sub = scene if len(g) == len(rows) else mp.build_scene([skels[i] for i in g], [pids[i] for i in g], kp.fps, kp.joint_names, hcfg, res_act)
         ref, targets, weight = mp.build_reference(
             sub, kp, [rows[i] for i in g], separate=rcfg.separate, substeps=hcfg.substeps if rcfg.schedule else 0,
             flat_feet=rcfg.flat_feet, sole_lift_m=sole_lift, ff_friction=rcfg.feedforward_friction,
             ff_smooth_frames=rcfg.feedforward_smooth_frames, separation_clearance_m=rcfg.separation_clearance_m,
-            posture_weight=rcfg.ik_posture_weight,
+            posture_weight=rcfg.ik_posture_weight, sole_m=sole[g],
         )
 
         def prog(d: int, n: int, msg: str, _g: list[int] = g) -> None:
             if progress is not None:
                 progress(done[0] + d, n * len(groups), f"persons {[pids[i] for i in _g]}: {msg}")
 
-        sol = mp.optimise_bout(sub, ref, targets, weight, cfg.solver, cfg.residual, prog)
+        resume = None
+        if len(g) == len(rows):
+            ref_digest = reference_digests(ref, targets, weight)
+        if prev is not None:
+            first_ref_change = first_changed(prev.checkpoints.reference_digest, ref_digest)
+            resume, why = _resume_from(prev, max(first_ref_change - reach, 0) if first_ref_change < F else F, F, cfg)
+        sol = mp.optimise_bout(sub, ref, targets, weight, cfg.solver, cfg.residual, prog, resume=resume)
+        if resume is not None:
+            starts = mp.window_starts(F, cfg.solver.window, cfg.solver.commit)
+            reused_frames = starts[resume.replan_from] if resume.replan_from < len(starts) else F
+        if len(g) == len(rows):
+            bout = sol
         done[0] += sol.windows
         for i_sub, i in enumerate(g):
             ps, pf = sub.layout.persons[i_sub], scene.layout.persons[i]
@@ -382,6 +442,12 @@ def _run(
         valid=np.ones(sites.shape[:3], dtype=bool),
         confidence=np.ones(sites.shape[:3]),
     )
+    first_input_change = -1
+    if inputs.previous is not None and inputs.previous.checkpoints.input_digest.shape == in_digest.shape:
+        first_input_change = first_changed(inputs.previous.checkpoints.input_digest, in_digest)
+    checkpoints = None
+    if bout is not None:
+        checkpoints = checkpoints_of(kp, pids, in_digest, ref_digest, body, skels, sole, bout, foot_offsets_mm)
     compute_s = time.perf_counter() - t_start
     motion_s = max(F - 1, 1) / kp.fps
     body_pen = mp.deepest_inter_person_mm(contacts, F)
@@ -406,8 +472,56 @@ def _run(
         "residual_force_max_frac_bw": float(np.max(np.linalg.norm(resid[..., :3], axis=-1) / weight_n[None], initial=0.0)),
         "body_penetration_max_mm": float(body_pen.max(initial=0.0)),
         "body_penetration_mean_mm": float(body_pen.mean()) if body_pen.size else 0.0,
+        "incremental": f"reused frames 0-{reused_frames - 1}" if reused_frames else f"full run: {why}",
+        "reused_frames": int(reused_frames),
+        "replanned_from_frame": int(reused_frames) if reused_frames < F else -1,
+        "replanned_windows": int(agg["windows"]) - (bout.planned_from_window if bout is not None else 0),
+        "replan_reach_frames": reach if inputs.previous is not None else 0,
+        "first_changed_input_frame": first_input_change,
+        "first_changed_reference_frame": first_ref_change,
         "compute_s": compute_s,
         "realtime_factor": compute_s / motion_s,
         **{f"seconds_{k}": v for k, v in secs.items()},
     }
-    return PhysicsOutput(result=result, keypoints=out_kp, mjcf=scene.mjcf, stats=stats)
+    return PhysicsOutput(result=result, keypoints=out_kp, mjcf=scene.mjcf, stats=stats, checkpoints=checkpoints)
+
+
+def _previous_or_why(
+    inputs: PhysicsInputs, kp: Keypoints3D, pids: list[int], cfg: PhysicsConfig, in_digest: np.ndarray, reach: int
+) -> tuple[PhysicsPrevious | None, str]:
+    """The previous run to reuse, or None and why not: also when the inputs changed so early
+    that no window can be kept (a full run then re-estimates the humanoids too)."""
+    if inputs.previous is None:
+        return None, "no previous run given"
+    if not cfg.incremental:
+        return None, "incremental is off"
+    why = layout_mismatch(inputs.previous, kp, pids, cfg.mode)
+    if why:
+        return None, why
+    from pipeline.backends.mujoco.physics import window_starts
+
+    first = first_changed(inputs.previous.checkpoints.input_digest, in_digest)
+    F = kp.n_frames
+    if first < F and replan_window(window_starts(F, cfg.solver.window, cfg.solver.commit), F, cfg.solver.window, first - reach) == 0:
+        return None, f"the inputs changed from frame {first} on, inside the first window"
+    return inputs.previous, ""
+
+
+def _resume_from(prev: PhysicsPrevious, first_ref_change: int, n_frames: int, cfg: PhysicsConfig) -> tuple[Any, str]:
+    """The backend's ``BoutResume`` that keeps every window before the first one reading a
+    changed reference frame (all of them when none changed), or None and why nothing can
+    be reused."""
+    from pipeline.backends.mujoco import physics as mp
+
+    ck, res = prev.checkpoints, prev.result
+    starts = mp.window_starts(n_frames, cfg.solver.window, cfg.solver.commit)
+    if [int(s) for s in ck.window_start] != starts:
+        return None, "the previous run's windows differ"
+    k = replan_window(starts, n_frames, cfg.solver.window, first_ref_change)
+    if k == 0:
+        return None, f"the reference changed from frame {first_ref_change} on, inside the first window"
+    resume = mp.BoutResume(
+        windows=ck.records(), replan_from=k, qpos=res.qpos, qvel=res.qvel, ctrl=res.ctrl,
+        actuator_force=res.joint_torque_nm, root_wrench=res.residual_root_force,
+    )
+    return resume, ""

@@ -202,13 +202,16 @@ class _FakeCtx:
     def progress(self, done: float, total: float | None = None, message: str = "") -> None:
         self.events.append((done, total, message))
 
+    def reusable_previous(self, enabled: bool) -> None:
+        self.metrics["incremental"] = "full run: no previous run"
+
 
 def test_step_execute_outputs_and_metrics() -> None:
     from pipeline.runner.steps.physics import SPEC
 
     ctx = _FakeCtx(_facing_pair(1.5, n_frames=8))
     outputs = SPEC.execute(ctx, PhysicsConfig(solver={"window": 5, "commit": 3, "ilqr": {"max_iter": 1, "n_alpha": 2}}))  # type: ignore[arg-type]
-    assert set(outputs) == {"result", "keypoints3d", "scene.xml"}
+    assert set(outputs) == {"result", "keypoints3d", "scene.xml", "checkpoints"}
     assert isinstance(outputs["result"], PhysicsResult) and outputs["keypoints3d"].source == "physics"
     assert ctx.metrics["windows"] == 2 and ctx.metrics["realtime_factor"] > 0
     assert [e[0] for e in ctx.events] == [1, 2] and all(e[1] == 2 for e in ctx.events)

@@ -6,6 +6,7 @@ Called by ``pipeline.stages.physics`` (which stays free of mujoco imports).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -28,11 +29,14 @@ from pipeline.backends.mujoco.reference import (
     separate_reference,
     servo_feedforward,
     site_targets,
+    sole_heights_m,
 )
 from pipeline.backends.mujoco.tracking import Reference, TrackingCost
 
 __all__ = [
+    "BoutResume",
     "BoutSolution",
+    "WindowRecord",
     "FrameContacts",
     "Scene",
     "SolverConfig",
@@ -45,12 +49,14 @@ __all__ = [
     "inverse_kinematics",
     "lift_off_floor",
     "optimise_bout",
+    "window_starts",
     "plant_feet",
     "reference_velocity",
     "separate_persons",
     "separate_reference",
     "servo_feedforward",
     "site_targets",
+    "sole_heights_m",
 ]
 
 log = logging.getLogger(__name__)
@@ -76,6 +82,57 @@ class BoutSolution:
     seconds: dict[str, float] = field(default_factory=dict)
     cost_first: list[float] = field(default_factory=list)
     cost_final: list[float] = field(default_factory=list)
+    records: list[WindowRecord] = field(default_factory=list)
+    """One record per window, in order: where it started and what it carried in."""
+    planned_from_window: int = 0
+    """Index of the first window this call optimised (the earlier ones came from ``resume``)."""
+
+
+@dataclass(frozen=True)
+class WindowRecord:
+    """What a receding-horizon window started from and how it went: enough to re-run the
+    bout from this window on exactly.
+
+    start: first frame; qpos (nq,), qvel (nv,): the simulated state it started from (a
+    reset window's output begins at the reference state instead); warm: (nv,) MuJoCo's
+    ``qacc_warmstart`` there (zeros: none);
+    carry: (k, nu) the previous window's controls past its committed frames, the initial
+    controls of this window's first k steps (0 <= k < window); residual: whether the
+    residual root wrench acted; iterations: iLQR iterations; reset: restarted from the
+    reference state; kinematic: frames that kept the reference (diverged);
+    cost_first/cost_final: the window's cost before and after the iLQR (nan: none)."""
+
+    start: int
+    qpos: np.ndarray
+    qvel: np.ndarray
+    warm: np.ndarray
+    carry: np.ndarray
+    residual: bool = False
+    iterations: int = 0
+    reset: bool = False
+    kinematic: int = 0
+    cost_first: float = float("nan")
+    cost_final: float = float("nan")
+
+
+@dataclass(frozen=True)
+class BoutResume:
+    """Re-run a bout from window ``replan_from`` on, keeping the windows before it.
+
+    windows: the previous solution's records (``BoutSolution.records``, one per window of
+    this bout); replan_from: index of the first window to re-plan (1 <= it <= windows; all
+    windows: nothing is re-planned), which starts from its record's state, warm start and
+    carried controls; qpos (frames, nq), qvel (frames, nv), ctrl, actuator_force
+    (frames, nu), root_wrench (frames, persons, 6): the previous solution, whose frames
+    before that window's start (all frames when nothing is re-planned) are copied."""
+
+    windows: tuple[WindowRecord, ...]
+    replan_from: int
+    qpos: np.ndarray
+    qvel: np.ndarray
+    ctrl: np.ndarray
+    actuator_force: np.ndarray
+    root_wrench: np.ndarray
 
 
 def _first_stable(
@@ -119,13 +176,45 @@ def _committed_frames(start: int, horizon: int, n_frames: int, commit: int) -> i
     return horizon if start + horizon >= n_frames - 1 else min(commit, horizon)
 
 
+def window_starts(n_frames: int, window: int, commit: int) -> list[int]:
+    """First frame of every receding-horizon window over ``n_frames``, in order."""
+    s, out = 0, []
+    while s < n_frames - 1:
+        out.append(s)
+        s += _committed_frames(s, min(window, n_frames - 1 - s), n_frames, commit)
+    return out
+
+
+def _resume(sol: BoutSolution, resume: BoutResume, n_frames: int, cfg: SolverConfig) -> WindowRecord | None:
+    """Fill ``sol`` with the kept windows of ``resume`` (frames, records, counts) and return
+    the record of the window to re-plan first (None: every window is kept)."""
+    starts = window_starts(n_frames, cfg.window, cfg.commit)
+    k = resume.replan_from
+    got = [w.start for w in resume.windows]
+    if got != starts or not 1 <= k <= len(starts):
+        raise ValueError(
+            f"optimise_bout: resume windows start at {got} (re-plan from #{k}), not at this bout's window starts {starts}"
+        )
+    s = starts[k] if k < len(starts) else n_frames
+    for name in ("qpos", "qvel", "ctrl", "actuator_force", "root_wrench"):
+        getattr(sol, name)[:s] = getattr(resume, name)[:s]
+    for w in resume.windows[:k]:
+        sol.records.append(w)
+        sol.windows += 1
+        sol.windows_with_residual += int(w.residual)
+        sol.iterations += w.iterations
+        sol.resets += int(w.reset)
+        sol.kinematic_frames += w.kinematic
+        if w.kinematic == 0:
+            sol.cost_first.append(w.cost_first)
+            sol.cost_final.append(w.cost_final)
+    sol.planned_from_window = k
+    return resume.windows[k] if k < len(starts) else None
+
+
 def count_windows(n_frames: int, window: int, commit: int) -> int:
     """Number of receding-horizon windows over ``n_frames`` (the last one is kept whole)."""
-    s, n = 0, 0
-    while s < n_frames - 1:
-        s += _committed_frames(s, min(window, n_frames - 1 - s), n_frames, commit)
-        n += 1
-    return n
+    return len(window_starts(n_frames, window, commit))
 
 
 def optimise_bout(
@@ -136,12 +225,19 @@ def optimise_bout(
     cfg: SolverConfig,
     residual: ResidualConfig = ResidualConfig(),
     progress: Callable[[int, int, str], None] | None = None,
+    resume: BoutResume | None = None,
 ) -> BoutSolution:
     """Receding-horizon iLQR: windows of ``cfg.window`` steps, the first
     ``cfg.commit`` of which are kept; the next window starts from the simulated
     state, so the whole output is one continuous simulation. Cost is linear in the
     number of frames. The residual root wrench is used as ``residual.mode`` says (the
-    scene must have its actuators, ``build_scene(residual=...)``, unless it is off)."""
+    scene must have its actuators, ``build_scene(residual=...)``, unless it is off).
+
+    ``resume``: start at a window of a previous solution of the same scene, from its stored
+    state, warm start and carried controls, and copy the frames before it; with the same
+    reference up to there the result is the one a run from frame 0 gives (every window
+    starts from its state alone: ``ilqr.rollout`` resets the data). ``ValueError`` when its
+    start is not a window start of this bout."""
     m, lay = scene.model, scene.layout
     d = mujoco.MjData(m)
     F = ref.qpos.shape[0]
@@ -164,6 +260,12 @@ def optimise_bout(
     s = 0
     n_windows = count_windows(F, cfg.window, cfg.commit)
     sol.qpos[0], sol.qvel[0] = qpos0, qvel0
+    if resume is not None:
+        first = _resume(sol, resume, F, cfg)
+        if first is None:
+            s = F - 1  # every window kept
+        else:
+            s, qpos0, qvel0, warm, carry = first.start, first.qpos.copy(), first.qvel.copy(), first.warm.copy(), first.carry.copy()
 
     bw = np.array([p.mass_kg * 9.81 for p in lay.persons])
 
@@ -182,6 +284,8 @@ def optimise_bout(
     try:
         while s < F - 1:
             H = min(cfg.window, F - 1 - s)
+            start = WindowRecord(s, qpos0.copy(), qvel0.copy(), np.zeros(m.nv) if warm is None else warm.copy(), carry.copy())
+            it0, resets0 = sol.iterations, sol.resets
             u0 = ref.ctrl[s : s + H].copy()
             nc = min(carry.shape[0], H)
             both = np.concatenate([servo, resid])
@@ -212,6 +316,7 @@ def optimise_bout(
                     sol.qvel[s + 1 : s + C + 1] = ref.qvel[s + 1 : s + C + 1]
                     sol.ctrl[s : s + C] = ref.ctrl[s : s + C]
                     sol.kinematic_frames += C
+                    sol.records.append(dataclasses.replace(start, residual=use_res, iterations=sol.iterations - it0, reset=True, kinematic=C))
                     qpos0, qvel0, warm = sol.qpos[s + C].copy(), sol.qvel[s + C].copy(), None
                     carry = np.zeros((0, m.nu))
                     s += C
@@ -239,6 +344,10 @@ def optimise_bout(
             sol.windows_with_residual += int(use_res)
             sol.cost_first.append(res.cost_history[0])
             sol.cost_final.append(res.cost_history[-1])
+            sol.records.append(dataclasses.replace(
+                start, residual=use_res, iterations=sol.iterations - it0, reset=sol.resets > resets0,
+                cost_first=float(res.cost_history[0]), cost_final=float(res.cost_history[-1]),
+            ))
             C = _committed_frames(s, H, F, cfg.commit)
             tr = res.traj
             sol.qpos[s : s + C + 1] = tr.qpos[: C + 1]

@@ -224,11 +224,20 @@ def site_targets(scene: Scene, kp: Keypoints3D, person_rows: list[int]) -> tuple
     return targets, weight
 
 
-def planted_site_targets(scene: Scene, kp: Keypoints3D, person_rows: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``site_targets`` with planted feet held still at the sole height (``plant_feet``):
-    (targets, weight, foot contact (frames, persons, 2))."""
+def sole_heights_m(kp: Keypoints3D, person_rows: list[int]) -> np.ndarray:
+    """(persons,) height of each person's foot keypoints above the sole (``sole_height_m``;
+    0 without foot keypoints)."""
+    return np.array([sole_height_m(kp, r) or 0.0 for r in person_rows])
+
+
+def planted_site_targets(
+    scene: Scene, kp: Keypoints3D, person_rows: list[int], sole_m: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``site_targets`` with planted feet held still at the sole height (``plant_feet``;
+    ``sole_m`` (persons,), default ``sole_heights_m``): (targets, weight, foot contact
+    (frames, persons, 2))."""
     targets, weight = site_targets(scene, kp, person_rows)
-    sole = np.array([sole_height_m(kp, r) or 0.0 for r in person_rows])
+    sole = sole_heights_m(kp, person_rows) if sole_m is None else np.asarray(sole_m, dtype=float)
     targets, contact = plant_feet(targets, weight, scene.site_names, kp.fps, sole)
     return targets, weight, contact
 
@@ -246,8 +255,11 @@ def build_reference(
     ff_smooth_frames: float = 0.0,
     separation_clearance_m: float = 0.003,
     posture_weight: float = 0.0,
+    sole_m: np.ndarray | None = None,
 ) -> tuple[Reference, np.ndarray, np.ndarray]:
     """IK reference + body-frame targets. Returns (reference, targets_world, weight).
+    ``sole_m``: (persons,) height of the foot keypoints above the sole (default: measured
+    on ``kp``, ``sole_heights_m``).
 
     With ``substeps`` > 0 the reference carries a per-substep servo schedule
     (``schedule.servo_schedule``: the reference interpolated between frames, with
@@ -264,7 +276,7 @@ def build_reference(
     m, lay = scene.model, scene.layout
     contact: np.ndarray | None = None
     if plant:
-        targets, weight, contact = planted_site_targets(scene, kp, person_rows)
+        targets, weight, contact = planted_site_targets(scene, kp, person_rows, sole_m)
     else:
         targets, weight = site_targets(scene, kp, person_rows)
     qref = inverse_kinematics(
