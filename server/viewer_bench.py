@@ -204,7 +204,9 @@ def run_bench(n_clients: int = 5, session: str = "", settle_s: float = 4.0, mesh
             src = make_session(data / "bout", n_frames=150, n_cameras=3, stages=("detect2d", "track", "associate", "triangulate"))
         server_home = tmp / "home"
         token = create_user("bench", "admin", home=server_home)
-        with running_server(server_home, n_workers=0, allowed_roots=[data]) as srv:
+        # A cold start (the first visit): the body meshes are posed, not read from an earlier run's cache.
+        cold = {"CORNERMAN_VIEWER_MESH_CACHE_DIR": str(tmp / "mesh-cache")}
+        with running_server(server_home, n_workers=0, allowed_roots=[data], extra_env=cold) as srv:
             api = httpx.Client(base_url=srv.url + "/api", headers={"Authorization": f"Bearer {token}"}, timeout=60)
             r = api.post("/sessions/from-folder", json={"path": str(src), "name": "bench"})
             if r.status_code != 201:

@@ -28,6 +28,7 @@ from webui.colors import IdentityPalette
 from webui.events import EventsView
 from webui.frames import FrameProvider
 from webui.scene.body import BodyMeshCache
+from webui.scene.body import cache_dir as mesh_cache_dir
 from webui.scene.physics_geoms import load_physics_geoms
 from webui.scene.session_data import STAGES_READ, SessionData, artifacts_stamp, load_session_data
 from webui.scene.world import add_world, align_client_camera
@@ -236,7 +237,8 @@ class ViewerApp:
             bf = self.data.bodyfit
             smpl_path = str(self.data.config.stage_config.get("fit", {}).get("body_model_path", ""))
             if bf is not None and (bf.body_model == "anny" or smpl_path):
-                cache = BodyMeshCache(bf, on_chunk=self.request_render_all, body_model_path=smpl_path)
+                cache = BodyMeshCache(bf, on_chunk=self.request_render_all, body_model_path=smpl_path,
+                                      cache=mesh_cache_dir())
                 cache.start()
                 self.body_cache = cache
             elif bf is not None:

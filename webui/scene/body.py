@@ -10,6 +10,7 @@ skeleton only. Every client of the viewer shares one cache.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import logging
@@ -19,6 +20,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import IO
 
 import numpy as np
@@ -30,6 +32,19 @@ log = logging.getLogger(__name__)
 
 CHUNK_FRAMES = 64
 """Frame rows posed (and sent back) at a time; the viewer shows each chunk as it arrives."""
+CACHE_KEEP = 16
+"""Posed mesh sets kept in ``cache_dir()`` (the oldest beyond are deleted)."""
+
+
+def cache_dir() -> Path:
+    """The viewer's cache of posed meshes by fit, so a viewer started again (after idling) skips posing:
+    ``$CORNERMAN_VIEWER_MESH_CACHE_DIR``, else ``$CORNERMAN_CACHE_DIR/viewer-meshes`` (``CORNERMAN_CACHE_DIR``
+    defaulting to ``~/.cache/cornerman``)."""
+    own = os.environ.get("CORNERMAN_VIEWER_MESH_CACHE_DIR")
+    if own:
+        return Path(own)
+    base = os.environ.get("CORNERMAN_CACHE_DIR") or str(Path.home() / ".cache" / "cornerman")
+    return Path(base) / "viewer-meshes"
 
 
 def read_record(stream: IO[bytes]) -> tuple[dict, np.ndarray | None] | None:
@@ -64,12 +79,15 @@ class BodyMeshCache:
     """Decimated posed vertices of every fitted person for every frame row of ``bodyfit``."""
 
     def __init__(
-        self, bodyfit: BodyFit, on_chunk: Callable[[], None] | None = None, body_model_path: str = ""
+        self, bodyfit: BodyFit, on_chunk: Callable[[], None] | None = None, body_model_path: str = "",
+        cache: Path | None = None,
     ) -> None:
         """``on_chunk`` is called (from the reader thread) whenever more frames are ready;
-        ``body_model_path``: the user's SMPL/SMPL-X model folder (SMPL fits only)."""
+        ``body_model_path``: the user's SMPL/SMPL-X model folder (SMPL fits only); ``cache``: a folder
+        where posed meshes are kept by fit (e.g. ``cache_dir()``; None: always pose)."""
         self.bodyfit = bodyfit
         self.body_model_path = body_model_path
+        self.cache = cache
         self.on_chunk = on_chunk
         n, p = bodyfit.frame_indices.shape[0], bodyfit.person_ids.shape[0]
         self._verts: list[np.ndarray | None] = [None] * p
@@ -79,6 +97,8 @@ class BodyMeshCache:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._proc: subprocess.Popen[bytes] | None = None
+        self.from_cache = False
+        """True when the meshes came from ``cache`` instead of the worker."""
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="body-meshes", daemon=True)
@@ -101,6 +121,46 @@ class BodyMeshCache:
     def _run(self) -> None:
         buf = io.BytesIO()
         np.savez(buf, **to_arrays(self.bodyfit))  # type: ignore[arg-type]
+        key = hashlib.sha256(buf.getvalue() + self.body_model_path.encode()).hexdigest()[:24]
+        if self.cache is not None and self._load_cached(self.cache, key):
+            return
+        self._pose(buf.getvalue())
+        if self.cache is not None and self.error is None and not self._stop.is_set() and bool(self._done.all()):
+            self._save_cached(self.cache, key)
+
+    def _load_cached(self, d: Path, key: str) -> bool:
+        path = d / f"{key}.npz"
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                faces, verts = z["faces"], z["verts"]
+        except (OSError, ValueError, KeyError):
+            return False
+        if verts.shape[:2] != self._done.shape:
+            return False
+        self._verts = [np.asarray(v, dtype=np.float32) for v in verts]
+        self.faces = np.asarray(faces, dtype=np.int64)
+        self._done[:] = True
+        self.from_cache = True
+        log.info("body meshes from %s", path)
+        if self.on_chunk is not None:
+            self.on_chunk()
+        return True
+
+    def _save_cached(self, d: Path, key: str) -> None:
+        """Best effort: a full disk or a read-only home only costs the next viewer a re-pose."""
+        if self.faces is None:
+            return
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+            tmp = d / f".{key}.{os.getpid()}.npz"
+            np.savez(tmp, faces=self.faces, verts=np.stack([v for v in self._verts if v is not None]))
+            os.replace(tmp, d / f"{key}.npz")
+            for old in sorted(d.glob("*.npz"), key=lambda f: f.stat().st_mtime)[:-CACHE_KEEP]:
+                old.unlink(missing_ok=True)
+        except OSError as e:
+            log.warning("body meshes not cached in %s: %s", d, e)
+
+    def _pose(self, fit_npz: bytes) -> None:
         cmd = [sys.executable, "-m", "webui.scene.body_worker", "--chunk", str(CHUNK_FRAMES)]
         if self.body_model_path:
             cmd += ["--body-model-path", self.body_model_path]
@@ -116,7 +176,7 @@ class BodyMeshCache:
         t0 = time.monotonic()
         assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
         try:
-            proc.stdin.write(buf.getvalue())
+            proc.stdin.write(fit_npz)
             proc.stdin.close()
             while not self._stop.is_set():
                 rec = read_record(proc.stdout)
