@@ -26,6 +26,14 @@ from pipeline.schema.joints import COCO17_FEET
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import BodyFit
 from pipeline.stages.fit_config import FitConfig
+from pipeline.stages.fit_incremental import (
+    FitCheckpoints,
+    FitPrevious,
+    changed_frames,
+    free_frames,
+    layout_mismatch,
+    refit_span,
+)
 
 if TYPE_CHECKING:
     from pipeline.backends.fitting.body_model import BodyModel
@@ -55,7 +63,9 @@ class FitResult:
 
     bodyfit: BodyFit
     keypoints3d: Keypoints3D
-    metrics: dict[str, float] = field(default_factory=dict)
+    metrics: dict[str, float | str] = field(default_factory=dict)
+    checkpoints: FitCheckpoints | None = None
+    """What a later incremental re-fit needs (``pipeline.stages.fit_incremental``)."""
 
 
 def _joint_map(names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
@@ -157,10 +167,14 @@ def run(
     rig: CameraRig,
     cfg: FitConfig = FitConfig(),
     progress: Callable[[float, float | None, str], None] | None = None,
+    previous: FitPrevious | None = None,
 ) -> FitResult:
     """Fit the body model to every person of ``keypoints3d`` (one shape per person, one pose
     and root translation per frame). Raises ``ValueError`` for inconsistent inputs and, for
     SMPL/SMPL-X, when the ``smplx`` package or the model files are missing.
+
+    ``previous``: the stage's previous run; with ``cfg.incremental`` only the frames whose
+    inputs changed (and a margin) are re-optimised (``pipeline.stages.fit_incremental``).
 
     ``progress(done, total, message)``, when given, is called at every L-BFGS iteration
     (``total``: the iteration budget of the whole fit); it may raise to stop the fit."""
@@ -182,7 +196,7 @@ def run(
     nf, npers, nj = keypoints3d.n_frames, keypoints3d.n_persons, len(COCO17_FEET)
 
     from pipeline.backends.fitting.common import PersonObservations
-    from pipeline.backends.fitting.sequence import fit_sequence
+    from pipeline.backends.fitting.sequence import FitHold, fit_sequence
 
     nb = len(bone_names)
     shape = np.tile(shape0, (npers, 1))
@@ -190,23 +204,50 @@ def run(
     root = np.zeros((nf, npers, 3))
     kp = np.zeros((nf, npers, nj, 3))
     loss = np.full(npers, np.nan)
-    metrics: dict[str, float] = {}
-    if fit_persons:
+    offsets = np.zeros((npers, nj, 3))
+    metrics: dict[str, float | str] = {}
+    ck = _checkpoints(keypoints3d, inputs, fit_persons, offsets)
+    prev, free, why = _incremental_plan(previous, ck, cfg, cfg.body_model, rig_name)
+    if prev is not None and free is not None:
+        # Start from the previous fit; the re-fit below overwrites its free frames.
+        shape, offsets = prev.bodyfit.shape.copy(), prev.checkpoints.landmark_offsets_m.copy()
+        pose, root = prev.bodyfit.pose.copy(), prev.bodyfit.root_translation_m.copy()
+        kp = prev.keypoints3d.xyz_m.copy()
+        loss = prev.bodyfit.loss_final.copy()
+        changed = changed_frames(prev.checkpoints, ck)
+        metrics.update(_reuse_metrics(changed, free))
+    else:
+        changed = np.zeros(nf, dtype=bool)
+    if fit_persons and (free is None or free.any()):
         obs = [
             PersonObservations(inputs[p].kp3d_m, inputs[p].w3d, inputs[p].uv_px, inputs[p].w2d)
             for p in fit_persons
         ]
-        res = fit_sequence(body, obs, rig.P, cfg, progress)
-        for k, p in enumerate(fit_persons):
-            shape[p], pose[:, p], root[:, p], kp[:, p], loss[p] = (
-                res.shape[k],
-                res.pose_aa[:, k],
-                res.root_m[:, k],
-                res.keypoints_m[:, k],
-                res.loss[k],
+        lo, hi, hold = 0, nf, None
+        if free is not None:
+            lo, hi = refit_span(free, cfg.accel_adapt_window)
+            obs = [PersonObservations(o.kp3d_m[lo:hi], o.w3d[lo:hi], o.uv_px[:, lo:hi], o.w2d[:, lo:hi]) for o in obs]
+            hold = FitHold(
+                shape=shape[fit_persons], landmark_offsets_m=offsets[fit_persons],
+                pose_aa=pose[lo:hi][:, fit_persons], root_m=root[lo:hi][:, fit_persons], free=free[lo:hi],
+                fresh=changed[lo:hi],
             )
+        res = fit_sequence(body, obs, rig.P, cfg, progress, hold=hold)
+        rows = np.arange(lo, hi) if free is None else np.flatnonzero(free)
+        for k, p in enumerate(fit_persons):
+            pose[rows, p], root[rows, p], kp[rows, p] = (
+                res.pose_aa[rows - lo, k], res.root_m[rows - lo, k], res.keypoints_m[rows - lo, k],
+            )
+            if free is None:
+                shape[p], loss[p] = res.shape[k], res.loss[k]
+                if res.landmark_offsets_m is not None:
+                    offsets[p] = res.landmark_offsets_m[k]
+            else:
+                loss[p] = _mean_3d_error(kp[:, p], inputs[p])
         metrics.update({f"time_{k}": round(v, 3) for k, v in res.timings_s.items()})
         metrics.update({f"loss_{k}": round(v, 6) for k, v in res.loss_terms.items()})
+    if free is None:
+        metrics["incremental"] = f"full run: {why}"
     valid = present.copy()
     valid[:, [p for p in range(npers) if p not in fit_persons]] = False
 
@@ -239,7 +280,7 @@ def run(
         source="fit",
     )
     rep = reprojection_by_camera(fitted, tracks, association, rig)
-    summary: dict[str, float] = {
+    summary: dict[str, float | str] = {
         "reproj_median_px": round(rep.median_all_px, 2),
         "reproj_p95_px": round(rep.p95_all_px, 2),
         "residual_3d_mm": round(float(np.nanmean(loss) * 1000), 2) if fit_persons else float("nan"),
@@ -247,4 +288,56 @@ def run(
         "frames_valid_pct": round(100.0 * float(valid.mean()), 1),
         "time_total_s": round(time.perf_counter() - t_start, 3),
     }
-    return FitResult(bodyfit=bodyfit, keypoints3d=fitted, metrics={**summary, **metrics})
+    checkpoints = FitCheckpoints(**{**ck.__dict__, "landmark_offsets_m": offsets})
+    return FitResult(bodyfit=bodyfit, keypoints3d=fitted, metrics={**summary, **metrics}, checkpoints=checkpoints)
+
+
+def _checkpoints(kp3d: Keypoints3D, inputs: list[PersonInputs], fit_persons: list[int], offsets: np.ndarray) -> FitCheckpoints:
+    fitted = np.zeros(len(inputs), dtype=bool)
+    fitted[fit_persons] = True
+    return FitCheckpoints(
+        person_ids=kp3d.person_ids.astype(np.int64),
+        frame_indices=kp3d.frame_indices.astype(np.int64),
+        fitted=fitted,
+        kp3d_m=np.stack([i.kp3d_m for i in inputs], axis=1),
+        w3d=np.stack([i.w3d for i in inputs], axis=1),
+        uv_px=np.stack([i.uv_px for i in inputs], axis=2),
+        w2d=np.stack([i.w2d for i in inputs], axis=2),
+        landmark_offsets_m=offsets,
+    )
+
+
+def _incremental_plan(
+    previous: FitPrevious | None, ck: FitCheckpoints, cfg: FitConfig, body_model: str, rig: str
+) -> tuple[FitPrevious | None, np.ndarray | None, str]:
+    """(the previous fit to build on, the frames to re-optimise, "") or (None, None, why not)."""
+    if previous is None:
+        return None, None, "no previous run given"
+    if not cfg.incremental:
+        return None, None, "incremental is off"
+    why = layout_mismatch(previous, ck, body_model, rig)
+    if why:
+        return None, None, why
+    free = free_frames(changed_frames(previous.checkpoints, ck), cfg.incremental_margin_frames)
+    if free.all():  # a full fit then re-estimates the shapes too
+        return None, None, "every frame's inputs changed"
+    return previous, free, ""
+
+
+def _reuse_metrics(changed: np.ndarray, free: np.ndarray) -> dict[str, float | str]:
+    """What an incremental re-fit reused (manifest metrics)."""
+    first = int(np.argmax(free)) if free.any() else -1
+    return {
+        "incremental": f"re-fit {int(free.sum())} frames from frame {first}" if free.any() else "nothing changed",
+        "reused_frames": int((~free).sum()),
+        "refit_frames": int(free.sum()),
+        "refit_from_frame": first,
+        "first_changed_input_frame": int(np.argmax(changed)) if changed.any() else -1,
+    }
+
+
+def _mean_3d_error(kp: np.ndarray, inp: PersonInputs) -> float:
+    """Mean confidence-weighted distance (m) between fitted ``kp`` (frames, joints, 3) and
+    the 3D targets (the fit's per-person ``loss_final``)."""
+    d = np.linalg.norm(kp - inp.kp3d_m, axis=-1)
+    return float((d * inp.w3d).sum() / max(float(inp.w3d.sum()), 1e-9))

@@ -181,6 +181,15 @@ class FitConfig:
     smpl_gender: Literal["neutral", "male", "female"] = "neutral"
     """SMPL/SMPL-X only: which model file of ``body_model_path`` to fit (``SMPL_<GENDER>.pkl``)."""
 
+    incremental: bool = True
+    """Re-use the previous fit (same config and code, frames and persons): re-optimise only
+    the frames whose inputs changed, ``incremental_margin_frames`` around them, and keep the
+    rest, the shapes and the landmark offsets (``pipeline.stages.fit_incremental``); False:
+    always fit in full."""
+
+    incremental_margin_frames: int = 10
+    """Frames re-optimised on each side of a changed one in an incremental re-fit (>= 0)."""
+
     def at_rate(self, fps: float) -> FitConfig:
         """This config with its temporal settings converted from ``reference_fps`` to ``fps``
         (a k-th difference of the same motion scales as ``fps^-k``); unchanged at the reference."""
@@ -238,5 +247,7 @@ class FitConfig:
             raise ValueError(f"FitConfig.min_conf_2d must be in [0, 1), got {self.min_conf_2d}")
         if self.precision not in ("float32", "float64"):
             raise ValueError(f"FitConfig.precision must be 'float32' or 'float64', got {self.precision!r}")
+        if self.incremental_margin_frames < 0:
+            raise ValueError(f"FitConfig.incremental_margin_frames must be >= 0, got {self.incremental_margin_frames}")
         if min(self.shape_iters, self.pose_iters_3d, self.pose_iters) < 0 or self.lbfgs_history < 1:
             raise ValueError("FitConfig: iteration counts must be >= 0 and lbfgs_history >= 1")

@@ -21,6 +21,7 @@ scaling L-BFGS needs ~3x more iterations for the same accuracy.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -44,7 +45,28 @@ from pipeline.schema.joints import COCO17_FEET
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["FitOutput", "fit_sequence", "init_limbs"]
+__all__ = ["FitHold", "FitOutput", "fit_sequence", "init_limbs"]
+
+
+@dataclass(frozen=True)
+class FitHold:
+    """What an incremental re-fit keeps from a previous fit (frames and persons as in the
+    observations): the per-person constants, and every frame outside ``free``.
+
+    shape: (persons, shape) the body shapes (not refined); landmark_offsets_m: (persons,
+    joints, 3) the landmark offsets (not re-calibrated); pose_aa: (frames, persons, bones, 3)
+    and root_m: (frames, persons, 3): the previous pose, as ``FitOutput``; free: (frames,)
+    bool, the frames to re-optimise; the other frames stay at the previous pose and take
+    part in the loss (the temporal terms see them); fresh: (frames,) bool, the free frames
+    initialised as a fresh fit would (those whose observations changed), the other free
+    frames start from the previous pose."""
+
+    shape: np.ndarray
+    landmark_offsets_m: np.ndarray
+    pose_aa: np.ndarray
+    root_m: np.ndarray
+    free: np.ndarray
+    fresh: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -56,7 +78,9 @@ class FitOutput:
     ones (rad); root_m: (frames, persons, 3) world root joint; keypoints_m: (frames, persons,
     joints, 3) fitted ``COCO17_FEET`` keypoints (landmark offsets included); present:
     (frames, persons) bool; loss: (persons,) mean confidence-weighted 3D distance (m);
-    timings_s: wall and CPU seconds of the steps; loss_terms: the final loss by term.
+    timings_s: wall and CPU seconds of the steps; loss_terms: the final loss by term;
+    landmark_offsets_m: (persons, joints, 3) per-person landmark offsets in their landmark
+    bones' frames (m; zeros without ``calibrate_landmarks``).
     """
 
     bone_names: tuple[str, ...]
@@ -69,6 +93,7 @@ class FitOutput:
     loss: np.ndarray
     timings_s: dict[str, float] = field(default_factory=dict)
     loss_terms: dict[str, float] = field(default_factory=dict)
+    landmark_offsets_m: np.ndarray | None = None
 
 
 def fit_sequence(
@@ -78,6 +103,7 @@ def fit_sequence(
     cfg: FitConfig,
     progress: ProgressFn | None = None,
     terms: tuple[str, ...] = DEFAULT_TERMS,
+    hold: FitHold | None = None,
 ) -> FitOutput:
     """Fit shape and per-frame pose of every person (see the module docstring).
 
@@ -89,6 +115,8 @@ def fit_sequence(
         progress: ``progress(done, total, message)`` at every L-BFGS iteration
             (``common.report_lbfgs_progress``); may raise to stop the fit.
         terms: the loss terms by name (``terms.LOSS_TERMS``), summed in this order.
+        hold: keep the shapes, landmark offsets and the frames outside ``hold.free`` of a
+            previous fit (an incremental re-fit); None: fit everything.
     Raises ``ValueError`` on inconsistent inputs, unknown terms or unreadable prior files.
     """
     if not observations:
@@ -99,12 +127,17 @@ def fit_sequence(
             raise ValueError(
                 f"fit ({body.name}): inconsistent observation shapes {o.kp3d_m.shape} / {o.uv_px.shape}"
             )
+    if hold is not None and (hold.free.shape != (nf,) or hold.root_m.shape != (nf, len(observations), 3)):
+        raise ValueError(
+            f"fit ({body.name}): hold covers {hold.free.shape} frames and root {hold.root_m.shape}, "
+            f"the observations {nf} frames of {len(observations)} persons"
+        )
     threads = torch.get_num_threads()
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
     try:
         with report_lbfgs_progress(progress, cfg):
-            return _fit(body, observations, P_px, cfg, terms)
+            return _fit(body, observations, P_px, cfg, terms, hold)
     finally:
         torch.set_num_threads(threads)
 
@@ -127,7 +160,12 @@ def init_limbs(
 
 
 def _fit(
-    body: BodyModel, observations: list[PersonObservations], P_px: np.ndarray, cfg: FitConfig, names: tuple[str, ...]
+    body: BodyModel,
+    observations: list[PersonObservations],
+    P_px: np.ndarray,
+    cfg: FitConfig,
+    names: tuple[str, ...],
+    hold: FitHold | None = None,
 ) -> FitOutput:
     nf, nv = observations[0].kp3d_m.shape[0], P_px.shape[0]
     npers, nb, nj = len(observations), len(body.bone_names), len(COCO17_FEET)
@@ -135,7 +173,11 @@ def _fit(
     timings: dict[str, float] = {}
 
     t0, c0 = time.perf_counter(), time.process_time()
-    shape = body.init_shape(observations, cfg)
+    if hold is not None:
+        shape = torch.as_tensor(hold.shape, dtype=dt)
+        cfg = dataclasses.replace(cfg, refine_shape=False)
+    else:
+        shape = body.init_shape(observations, cfg)
     timings["shape_s"] = time.perf_counter() - t0
     timings["shape_cpu_s"] = time.process_time() - c0
 
@@ -150,6 +192,10 @@ def _fit(
     for p, o in enumerate(observations):
         R0[p], T0[p], _ = init_roots(rest_kp[p], o)
         present[:, p] = (o.w3d > 0).sum(axis=1) >= cfg.min_valid_joints
+    if hold is not None:  # held frames start (and stay) at the previous pose
+        kept = ~(hold.free & hold.fresh)
+        R0[:, kept] = roma.rotvec_to_rotmat(torch.as_tensor(hold.pose_aa[kept, :, 0].transpose(1, 0, 2).copy())).numpy()
+        T0[:, kept] = hold.root_m[kept].transpose(1, 0, 2)
     R0_t = torch.as_tensor(R0.reshape(n, 3, 3), dtype=dt)
     targets = Targets(
         kp3d_m=torch.as_tensor(np.stack([o.kp3d_m for o in observations]).reshape(n, nj, 3), dtype=dt),
@@ -165,6 +211,12 @@ def _fit(
     root0 = torch.as_tensor(T0.reshape(n, 3), dtype=dt).clone()
     with torch.no_grad():
         pose0 = init_limbs(body, R0_t, torch.zeros(n, nb - 1, 3, dtype=dt), root0, targets.kp3d_m, targets.w3d)
+    row_free = None
+    if hold is not None:
+        row_free = torch.as_tensor(np.tile(hold.free, npers))  # rows are person-major
+        row_fresh = torch.as_tensor(np.tile(hold.free & hold.fresh, npers))
+        prev_pose = torch.as_tensor(hold.pose_aa[:, :, 1:].transpose(1, 0, 2, 3).reshape(n, nb - 1, 3).copy(), dtype=dt)
+        pose0 = torch.where(row_fresh[:, None, None], pose0, prev_pose)
     timings["init_s"] = time.perf_counter() - t0
 
     # Optimised variables are scaled so that the loss has similar curvature along each
@@ -179,10 +231,19 @@ def _fit(
     pose_s = (pose0 * s_rot[:, 1:]).requires_grad_(True)
     root_s = (root0 * s_root).requires_grad_(True)
     # per-person landmark offsets, rigid in the frame of each keypoint's landmark bone
-    offsets_s = torch.zeros(npers, nj, 3, dtype=dt, requires_grad=cfg.calibrate_landmarks)
+    offsets_s = torch.zeros(npers, nj, 3, dtype=dt, requires_grad=cfg.calibrate_landmarks and hold is None)
+    if hold is not None:
+        with torch.no_grad():
+            offsets_s += torch.as_tensor(hold.landmark_offsets_m, dtype=dt) * s_offsets
     shape_s = body.encode_shape(shape, s_const).requires_grad_(cfg.refine_shape)
     params = [delta_s, pose_s, root_s]
-    params += ([offsets_s] if cfg.calibrate_landmarks else []) + ([shape_s] if cfg.refine_shape else [])
+    params += ([offsets_s] if cfg.calibrate_landmarks and hold is None else []) + ([shape_s] if cfg.refine_shape else [])
+    if row_free is not None:
+        # Held rows get no gradient, so L-BFGS never moves them (its steps are combinations
+        # of gradients): they stay at the previous pose exactly.
+        mask = row_free.to(dt)
+        for v in (delta_s, pose_s, root_s):
+            v.register_hook(lambda g, m=mask.reshape(-1, *([1] * (v.dim() - 1))): g * m)
 
     def state(use_2d: bool, accel_weights: torch.Tensor | None) -> FitState:
         """The variables in physical units and the body posed by them."""
@@ -230,4 +291,5 @@ def _fit(
         loss=per_person,
         timings_s=timings,
         loss_terms=loss_terms,
+        landmark_offsets_m=hold.landmark_offsets_m.copy() if hold is not None else s.offsets.double().numpy().copy(),
     )

@@ -1,7 +1,9 @@
 """fit step: body-model shape and pose per athlete from the filtered 3D and the 2D keypoints.
 
 Depends on the triangulate, associate and track artifacts, so an identity fix upstream
-(annotations consumed by track/associate) makes this stage stale automatically.
+(annotations consumed by track/associate) makes this stage stale automatically. With
+``FitConfig.incremental`` the stage's previous fit is passed back in and only the frames
+whose inputs changed are re-optimised (``pipeline.stages.fit_incremental``).
 """
 
 from __future__ import annotations
@@ -12,8 +14,27 @@ from pipeline.runner.spec import StageContext, StageSpec
 from pipeline.schema.association import Association
 from pipeline.schema.detections import Tracks2D
 from pipeline.schema.keypoints3d import Keypoints3D
+from pipeline.schema.results import BodyFit
 from pipeline.stages.fit import FitConfig
 from pipeline.stages.fit import run as run_fit
+from pipeline.stages.fit_incremental import FitCheckpoints, FitPrevious
+
+CHECKPOINTS = "checkpoints"
+"""Name of the stage's checkpoints output (``checkpoints.npz``)."""
+
+
+def _previous(ctx: StageContext, cfg: FitConfig) -> FitPrevious | None:
+    prev = ctx.reusable_previous(cfg.incremental)
+    if prev is None:
+        return None
+    if not ctx.has("fit", f"{CHECKPOINTS}.npz"):
+        ctx.metrics["incremental"] = "full run: the previous run stored no checkpoints"
+        return None
+    return FitPrevious(
+        bodyfit=ctx.load_previous("bodyfit", BodyFit),
+        keypoints3d=ctx.load_previous("keypoints3d", Keypoints3D),
+        checkpoints=ctx.load_previous(CHECKPOINTS, FitCheckpoints),
+    )
 
 
 def _loading_message(cfg: FitConfig) -> str:
@@ -35,11 +56,21 @@ def _execute(ctx: StageContext, cfg: FitConfig) -> dict[str, Any]:
     kp3d = ctx.load("triangulate", "keypoints3d", Keypoints3D)
     tracks = ctx.load("track", "tracks", Tracks2D)
     assoc = ctx.load("associate", "association", Association)
+    previous = _previous(ctx, cfg)
     ctx.progress(0, 1, _loading_message(cfg))
-    res = run_fit(kp3d, tracks, assoc, ctx.rig, cfg, progress=ctx.progress)
+    res = run_fit(kp3d, tracks, assoc, ctx.rig, cfg, progress=ctx.progress, previous=previous)
     ctx.progress(1, 1, "done")
-    ctx.metrics.update(res.metrics)
-    return {"bodyfit": res.bodyfit, "keypoints3d": res.keypoints3d}
+    metrics = dict(res.metrics)
+    if previous is None and "incremental" in ctx.metrics:  # the runner's reason wins over the stage's
+        metrics["incremental"] = ctx.metrics["incremental"]
+    ctx.metrics.update(metrics)
+    if previous is not None and res.metrics.get("reused_frames", 0):
+        assert ctx.previous is not None
+        ctx.metrics["previous_outputs_hash"] = ctx.previous.manifest.outputs_hash
+    outputs: dict[str, Any] = {"bodyfit": res.bodyfit, "keypoints3d": res.keypoints3d}
+    if res.checkpoints is not None:
+        outputs[CHECKPOINTS] = res.checkpoints
+    return outputs
 
 
 SPEC = StageSpec(
