@@ -29,6 +29,7 @@ import numpy as np
 from scipy.linalg import solveh_banded
 
 from pipeline.geometry.dlt import inv_sym3
+from pipeline.schema.bones import BoneLengths
 from pipeline.schema.joints import BONES, RIGID_BONES, bone_indices
 from pipeline.schema.keypoints3d import Keypoints3D
 
@@ -42,6 +43,10 @@ class FilterConfig:
     bone_tolerance: float = 0.25
     """Relative deviation from the median bone length above which a frame is an outlier
     (0 disables the bone check)."""
+    hold_bone_rel: float = 0.02
+    """On a re-run with the previous run's bone lengths (``run_holding``'s ``held``), a
+    person's median bone length that moved by at most this fraction (>= 0) keeps its
+    previous value, so a local edit leaves the other frames exactly as they were; 0 = never."""
     spline_max_gap_s: float = 0.2
     """Gaps up to this long are filled by cubic-spline interpolation."""
     smoother: Literal["kalman", "none"] = "kalman"
@@ -69,7 +74,7 @@ class FilterConfig:
 
     def __post_init__(self) -> None:
         positive = ("jerk_std", "meas_std_m", "outlier_dist_m", "ray_gate_px")
-        non_negative = ("bone_tolerance", "spline_max_gap_s", "kalman_max_gap_s", "ray_iterations", "bone_ray_std_m")
+        non_negative = ("bone_tolerance", "hold_bone_rel", "spline_max_gap_s", "kalman_max_gap_s", "ray_iterations", "bone_ray_std_m")
         for name in positive + non_negative:
             v = getattr(self, name)
             ok = np.isfinite(v) and (v > 0 if name in positive else v >= 0)
@@ -114,7 +119,19 @@ def run(
     meas_info: np.ndarray | None = None,
     rays: RayObservations | None = None,
 ) -> Keypoints3D:
-    """Filter ``raw`` (any source) into ``source="filtered"`` keypoints of the same extent.
+    """``run_holding`` without held bone lengths: the filtered keypoints only."""
+    return run_holding(raw, cfg, meas_info, rays)[0]
+
+
+def run_holding(
+    raw: Keypoints3D,
+    cfg: FilterConfig = FilterConfig(),
+    meas_info: np.ndarray | None = None,
+    rays: RayObservations | None = None,
+    held: BoneLengths | None = None,
+) -> tuple[Keypoints3D, BoneLengths]:
+    """Filter ``raw`` (any source) into ``source="filtered"`` keypoints of the same extent,
+    and return the per-person median bone lengths it used.
 
     Args:
         raw: keypoints to filter (``frame_indices`` consecutive).
@@ -124,20 +141,28 @@ def run(
             isotropic with std ``meas_std_m / confidence``.
         rays: optional single-view observations of joints the raw data lacks (used only
             with the Kalman smoother, for ``ray_iterations`` Gauss-Newton passes).
+        held: bone lengths of a previous run of the same persons: a median within
+            ``hold_bone_rel`` of its held value keeps the held value (``hold_lengths``).
     Raises ``ValueError`` if ``raw.frame_indices`` are not consecutive (the filter needs a
     uniform time step) or ``meas_info`` has the wrong shape.
     """
     if raw.n_frames > 1 and np.any(np.diff(raw.frame_indices) != 1):
         raise ValueError(f"filtering needs consecutive frame_indices, got gaps in {raw.frame_indices[:10]}...")
+    same = held is not None and np.array_equal(held.person_ids, raw.person_ids)
+    rigid = hold_lengths(
+        bone_medians(raw.xyz_m, raw.valid, raw.joint_names, "rigid"), held.rigid_m if same and held else None, cfg.hold_bone_rel
+    )
+    limbs = held.limbs_m if same and held else np.full((raw.n_persons, len(bone_indices(raw.joint_names, BONES))), np.nan)
     if not cfg.enabled or raw.n_frames == 0:
-        return raw.replace(source="filtered")
+        return raw.replace(source="filtered"), BoneLengths(raw.person_ids.copy(), rigid, limbs)
     valid = raw.valid.copy()
     conf = raw.confidence.copy()
     if cfg.bone_tolerance > 0:
-        valid &= ~bone_outliers(raw.xyz_m, valid, conf, raw.joint_names, cfg.bone_tolerance)
+        valid &= ~bone_outliers(raw.xyz_m, valid, conf, raw.joint_names, cfg.bone_tolerance, rigid)
     fps = raw.fps
     xyz, filled = fill_gaps_spline(raw.xyz_m, valid, max(0, int(round(cfg.spline_max_gap_s * fps))))
     meas = valid | filled
+    limbs = hold_lengths(bone_medians(xyz, meas, raw.joint_names, "limbs"), limbs if same else None, cfg.hold_bone_rel)
     meas_conf = np.where(valid, conf, np.where(filled, 0.5 * _neighbour_conf(conf, valid), 0.0))
     if cfg.smoother == "kalman":
         iso = (np.maximum(meas_conf, 0.05) / cfg.meas_std_m) ** 2
@@ -154,7 +179,7 @@ def run(
             cand = rays.mask & ~meas & bridged
             if cfg.bone_ray_std_m > 0 and cand.any():
                 # A ray + the bone length to a located neighbour pins the depth along the ray.
-                pts, got = bone_ray_points(rays, xyz, meas, est, raw.joint_names, cand)
+                pts, got = bone_ray_points(rays, xyz, meas, est, raw.joint_names, cand, limbs)
                 if got.any():
                     xyz = np.where(got[..., None], pts, xyz)
                     info = np.where(got[..., None, None], np.eye(3) / cfg.bone_ray_std_m**2, info)
@@ -187,14 +212,46 @@ def run(
         n_views=np.where(valid, raw.n_views, 0),
         reproj_err_px=np.where(valid, raw.reproj_err_px, np.nan),
         source="filtered",
-    )
+    ), BoneLengths(raw.person_ids.copy(), rigid, limbs)
+
+
+def bone_medians(xyz: np.ndarray, located: np.ndarray, joint_names: tuple[str, ...], bone_set: str) -> np.ndarray:
+    """(persons, bones) median length (m) of each bone of ``bone_set`` (``"rigid"``:
+    ``RIGID_BONES``; ``"limbs"``: ``BONES``) over the frames where both ends are located;
+    NaN for a bone never located."""
+    bones = bone_indices(joint_names, RIGID_BONES if bone_set == "rigid" else BONES)
+    if not bones:
+        return np.zeros((xyz.shape[1], 0))
+    a, b = np.array(bones).T
+    length = np.linalg.norm(xyz[:, :, a] - xyz[:, :, b], axis=-1)  # (F, P, B)
+    ok = located[:, :, a] & located[:, :, b]
+    with warnings.catch_warnings():  # bones never located give an all-NaN median
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmedian(np.where(ok, length, np.nan), axis=0)
+
+
+def hold_lengths(new: np.ndarray, held: np.ndarray | None, tol_rel: float) -> np.ndarray:
+    """``new`` bone lengths, except where ``held`` (the previous run's, same shape) is within
+    ``tol_rel`` (relative) of it: there the held length stays, so that an edit that barely
+    moves a person's medians does not move every frame of the bout."""
+    if held is None or held.shape != new.shape or tol_rel <= 0:
+        return new
+    with np.errstate(invalid="ignore"):
+        keep = (np.abs(new - held) <= tol_rel * held) | (np.isnan(new) & np.isnan(held))
+    return np.where(keep, held, new)
 
 
 def bone_outliers(
-    xyz: np.ndarray, valid: np.ndarray, conf: np.ndarray, joint_names: tuple[str, ...], tol: float
+    xyz: np.ndarray,
+    valid: np.ndarray,
+    conf: np.ndarray,
+    joint_names: tuple[str, ...],
+    tol: float,
+    med: np.ndarray | None = None,
 ) -> np.ndarray:
     """(frames, persons, joints) True where a joint is the weaker end of a bone whose length
-    deviates from its per-person median by more than ``tol`` (relative)."""
+    deviates from its per-person median (``med``, (persons, rigid bones) m; computed from
+    ``xyz`` when None) by more than ``tol`` (relative)."""
     bones = bone_indices(joint_names, RIGID_BONES)
     out = np.zeros(valid.shape, bool)
     if not bones:
@@ -202,9 +259,8 @@ def bone_outliers(
     a, b = np.array(bones).T
     length = np.linalg.norm(xyz[:, :, a] - xyz[:, :, b], axis=-1)  # (F, P, B)
     ok = valid[:, :, a] & valid[:, :, b]
-    with warnings.catch_warnings():  # bones never valid give an all-NaN median: no check there
-        warnings.simplefilter("ignore", RuntimeWarning)
-        med = np.nanmedian(np.where(ok, length, np.nan), axis=0)
+    if med is None:
+        med = bone_medians(xyz, valid, joint_names, "rigid")
     with np.errstate(invalid="ignore", divide="ignore"):
         bad = ok & (np.abs(length - med[None]) > tol * med[None])
     if not bad.any():
@@ -284,6 +340,7 @@ def bone_ray_points(
     est: np.ndarray,
     joint_names: tuple[str, ...],
     cand: np.ndarray,
+    med: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """3D points for single-view joints from their ray and a bone to a located neighbour.
 
@@ -301,11 +358,9 @@ def bone_ray_points(
         return pts, got
     a, b = np.array(bones).T
     ok = located[:, :, a] & located[:, :, b]
-    length = np.linalg.norm(xyz[:, :, a] - xyz[:, :, b], axis=-1)
     n_ok = ok.sum(axis=0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        med = np.nanmedian(np.where(ok, length, np.nan), axis=0)  # (persons, bones)
+    if med is None:
+        med = bone_medians(xyz, located, joint_names, "limbs")  # (persons, bones)
     med = np.where(n_ok >= 10, med, np.nan)
     # Viewing rays in the world: centre C = offset - R^T t, direction R^T [x, y, 1].
     R = rays.P[rays.view][..., :3]  # (F, P, J, 3, 3)

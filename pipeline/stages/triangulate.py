@@ -26,11 +26,12 @@ from pipeline.evaluate.consistency import reprojection_by_camera
 from pipeline.geometry.dlt import normalized_projections, point_information, triangulate_robust
 from pipeline.geometry.projection import undistort_rig_points
 from pipeline.schema.association import Association
+from pipeline.schema.bones import BoneLengths
 from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.stages.filtering import FilterConfig, RayObservations
-from pipeline.stages.filtering import run as run_filter
+from pipeline.stages.filtering import run_holding as run_filter
 from pipeline.stages.joint_fill import FillConfig
 from pipeline.stages.joint_fill import run as run_fill
 from pipeline.stages.observations import athlete_rows
@@ -66,6 +67,10 @@ class TriangulateConfig:
     fill: FillConfig = field(default_factory=FillConfig)
     """Filling of joints still missing after the filter from their rigid neighbours
     (``pipeline.stages.joint_fill``; a dict in ``session.json`` is accepted)."""
+    incremental: bool = True
+    """Re-use the previous run's per-person bone lengths where they barely moved
+    (``filter.hold_bone_rel``), so an identity edit changes the frames near it only; False:
+    estimate them afresh each run."""
 
     def __post_init__(self) -> None:
         for name, cls in (("filter", FilterConfig), ("fill", FillConfig)):
@@ -109,7 +114,20 @@ def gather(
 def run(
     tracks: Tracks2D, assoc: Association, rig: CameraRig, cfg: TriangulateConfig = TriangulateConfig()
 ) -> tuple[Keypoints3D, Keypoints3D]:
-    """Triangulate every athlete; returns ``(raw, filtered)`` keypoints (frames ``0..n_frames-1``).
+    """``run_holding`` without held bone lengths: ``(raw, filtered)``."""
+    raw, filtered, _ = run_holding(tracks, assoc, rig, cfg)
+    return raw, filtered
+
+
+def run_holding(
+    tracks: Tracks2D,
+    assoc: Association,
+    rig: CameraRig,
+    cfg: TriangulateConfig = TriangulateConfig(),
+    held: BoneLengths | None = None,
+) -> tuple[Keypoints3D, Keypoints3D, BoneLengths]:
+    """Triangulate every athlete; returns ``(raw, filtered)`` keypoints (frames ``0..n_frames-1``)
+    and the bone lengths the filter used (``held``: a previous run's, see ``filtering.run_holding``).
 
     ``raw`` (``source="raw"``): DLT results with ``valid``, ``n_views``,
     ``reproj_err_px`` (mean over the kept views, undistorted pixels) and ``confidence``
@@ -143,7 +161,8 @@ def run(
         source="raw",
     )
     if not cfg.filter.enabled:
-        return raw, run_fill(run_filter(raw, cfg.filter), cfg.fill)
+        filtered, bones = run_filter(raw, cfg.filter, held=held)
+        return raw, run_fill(filtered, cfg.fill), bones
     info = point_information(P, X, used, conf, focal, cfg.pixel_std_px) if cfg.point_covariance else None
     single = ~ok & ((conf > 0).sum(axis=-1) >= 1)
     best = np.argmax(conf, axis=-1)
@@ -157,7 +176,8 @@ def run(
         conf=np.take_along_axis(conf, best[..., None], axis=-1)[..., 0],
         pixel_std_px=cfg.pixel_std_px,
     )
-    return raw, run_fill(run_filter(raw, cfg.filter, meas_info=info, rays=rays), cfg.fill)
+    filtered, bones = run_filter(raw, cfg.filter, meas_info=info, rays=rays, held=held)
+    return raw, run_fill(filtered, cfg.fill), bones
 
 
 def summary(

@@ -4,19 +4,38 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from pipeline.runner.spec import StageContext, StageSpec
 from pipeline.schema.association import Association
+from pipeline.schema.bones import BoneLengths
 from pipeline.schema.detections import Tracks2D
-from pipeline.stages.triangulate import TriangulateConfig, summary
-from pipeline.stages.triangulate import run as run_triangulate
+from pipeline.stages.triangulate import TriangulateConfig, run_holding, summary
 
 
 def _execute(ctx: StageContext, cfg: TriangulateConfig) -> dict[str, Any]:
     tracks = ctx.load("track", "tracks", Tracks2D)
     assoc = ctx.load("associate", "association", Association)
-    raw, filtered = run_triangulate(tracks, assoc, ctx.rig, cfg)
+    held = None
+    prev = ctx.reusable_previous(cfg.incremental)
+    if prev is not None:
+        if "bone_lengths.npz" in prev.manifest.outputs:
+            held = ctx.load_previous("bone_lengths", BoneLengths)
+            ctx.metrics["incremental"] = (
+                "bone lengths held from the previous run where they moved <= hold_bone_rel"
+            )
+        else:
+            ctx.metrics["incremental"] = "full run: the previous run stored no bone lengths"
+    raw, filtered, bones = run_holding(tracks, assoc, ctx.rig, cfg, held)
+    if held is not None:
+        same = (
+            np.isclose(bones.rigid_m, held.rigid_m, equal_nan=True)
+            if bones.rigid_m.shape == held.rigid_m.shape
+            else False
+        )
+        ctx.metrics["bones_held_pct"] = round(100.0 * float(np.mean(same)), 1)
     ctx.metrics.update(summary(raw, filtered, tracks, assoc, ctx.rig))
-    return {"raw": raw, "keypoints3d": filtered}
+    return {"raw": raw, "keypoints3d": filtered, "bone_lengths": bones}
 
 
 SPEC = StageSpec(
