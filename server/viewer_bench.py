@@ -131,6 +131,42 @@ def open_client(ws_url: str, headers: dict[str, str] | None = None, timeout_s: f
     return c
 
 
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync")
+
+
+@dataclass
+class BrowserClient:
+    """A headless Chromium page on the viewer (``clients=browser``): it renders the 3D view too."""
+
+    context: Any
+    page: Any
+    received_bytes: int = 0  # not measured for a browser
+    frame_updates: int = 0
+
+    def frame(self) -> int | None:
+        m = re.search(r"frame (\d+) / \d+", self.page.get_by_text(re.compile(r"frame \d+ / \d+")).inner_text())
+        return int(m.group(1)) if m else None
+
+    def set_value(self, label: str, value: Any) -> None:
+        if label != "Play" or value is not True:
+            raise ValueError(f"BrowserClient.set_value: only ('Play', True), got ({label!r}, {value!r})")
+        self.page.get_by_text("Play", exact=True).click(timeout=180_000)  # 2 cores: software WebGL is slow
+
+    def close(self) -> None:
+        self.context.close()
+
+
+def open_browser_client(browser: Any, base_url: str, session_id: int, cookie: str) -> BrowserClient:
+    ctx = browser.new_context(viewport={"width": 1100, "height": 760})
+    ctx.add_cookies([{"name": "cornerman_session", "value": cookie, "url": base_url}])
+    page = ctx.new_page()
+    page.goto(f"{base_url}/viewer/{session_id}/")
+    page.get_by_text(re.compile(r"frame \d+ / \d+")).wait_for(timeout=180_000)
+    return BrowserClient(ctx, page)
+
+
 def viewer_pids(session_dir: Path) -> list[int]:
     """Live ``webui.app`` processes serving ``session_dir`` (from /proc)."""
     out = []
@@ -185,13 +221,21 @@ def _settle(pid: int, seconds: float, peak: list[float]) -> float:
 
 
 def run_bench(n_clients: int = 5, session: str = "", settle_s: float = 4.0, mesh_timeout_s: float = 300.0,
-              home: Path | None = None) -> list[dict[str, Any]]:
-    """Start a server with one session, connect ``n_clients`` to its viewer, report memory rows."""
+              clients: str = "ws", home: Path | None = None) -> list[dict[str, Any]]:
+    """Start a server with one session, connect ``n_clients`` to its viewer, report memory rows.
+
+    ``clients``: ``ws`` (websocket clients, light enough for 5 on 2 cores) or ``browser`` (headless
+    Chromium pages, ``/usr/bin/chromium`` and playwright; frames per second are not counted then).
+    """
     from server.cli import create_user
     from server.demo import make_session
 
     if n_clients < 1:
         raise ValueError(f"bench viewer: n_clients must be >= 1, got {n_clients}")
+    if clients not in ("ws", "browser"):
+        raise ValueError(f"bench viewer: clients must be 'ws' or 'browser', got {clients!r}")
+    if clients == "browser" and not Path(CHROMIUM).exists():
+        raise ValueError(f"bench viewer: clients=browser needs {CHROMIUM} (apt-get install chromium)")
     if session and not (Path(session) / "session.json").is_file():
         raise ValueError(f"bench viewer: session={session}: no session.json there")
     tmp = Path(tempfile.mkdtemp(prefix="cornerman-viewer-bench-")) if home is None else home
@@ -231,18 +275,30 @@ def run_bench(n_clients: int = 5, session: str = "", settle_s: float = 4.0, mesh
             rss0 = _settle(pid, settle_s, peak)
             ws_url = srv.url.replace("http://", "ws://") + f"/viewer/{sid}"
             headers = {"Cookie": f"cornerman_session={cookie}", "Origin": srv.url}
-            clients = [open_client(ws_url, headers)]
+            pw = browser = None
+            if clients == "browser":
+                from playwright.sync_api import sync_playwright
+
+                pw = sync_playwright().start()
+                browser = pw.chromium.launch(executable_path=CHROMIUM, args=list(CHROMIUM_ARGS))
+
+            def connect() -> WsClient | BrowserClient:
+                if browser is not None:
+                    return open_browser_client(browser, srv.url, sid, cookie)
+                return open_client(ws_url, headers)
+
+            conns = [connect()]
             rss1 = _settle(pid, settle_s, peak)
-            clients += [open_client(ws_url, headers) for _ in range(n_clients - 1)]
+            conns += [connect() for _ in range(n_clients - 1)]
             rss_n = _settle(pid, settle_s, peak)
             c0 = cpu_s(pid)
             rss_n = max(rss_n, _settle(pid, settle_s, peak))
             cpu_pct = 100.0 * (cpu_s(pid) - c0) / settle_s
-            received = sum(c.received_bytes for c in clients) / len(clients) / 1e6
+            received = sum(c.received_bytes for c in conns) / len(conns) / 1e6
             # Play: one client, then all of them (each at 1x), then they all leave while playing
-            play_rows = []
-            for playing in (clients[:1], clients):
-                for c in playing:
+            play_rows: list[dict[str, Any]] = []
+            for starting, playing in ((conns[:1], conns[:1]), (conns[1:], conns)):
+                for c in starting:
                     c.set_value("Play", True)
                 _settle(pid, 1.0, peak)
                 c0, u0 = cpu_s(pid), [c.frame_updates for c in playing]
@@ -252,18 +308,30 @@ def run_bench(n_clients: int = 5, session: str = "", settle_s: float = 4.0, mesh
                     {"measure": f"viewer CPU, {len(playing)} playing (% of a core)",
                      "value": round(100.0 * (cpu_s(pid) - c0) / settle_s, 1)},
                     {"measure": f"frames drawn per second per playing client ({len(playing)} playing)",
-                     "value": round(rate, 1)},
+                     "value": round(rate, 1) if clients == "ws" else None},
                 ]  # fmt: skip
-            for c in clients:
+            log_path = folder / "logs" / "viewer.log"
+            t_close = time.monotonic()
+            for c in conns:
                 c.close()
+            # Under load a closing browser can take seconds to drop its websocket: wait for the viewer to see them go.
+            t_end = time.monotonic() + 120
+            while log_path.read_text(errors="replace").count(" left") < n_clients and time.monotonic() < t_end:
+                _settle(pid, 0.25, peak)
+            gone_s = time.monotonic() - t_close
+            if browser is not None and pw is not None:
+                browser.close()
+                pw.stop()
             _settle(pid, 1.0, peak)
             c0 = cpu_s(pid)
             rss_after = _settle(pid, settle_s, peak)
+            play_rows.append({"measure": "seconds until the viewer saw every client leave", "value": round(gone_s, 1)})
             play_rows.append({"measure": "viewer CPU after they left while playing (% of a core)",
                               "value": round(100.0 * (cpu_s(pid) - c0) / settle_s, 1)})
             api.close()
             web.close()
-        rows = [
+        rows: list[dict[str, Any]] = [
+            {"measure": "clients", "value": clients},
             {"measure": "viewer start (first page, s)", "value": round(start_s, 1)},
             {"measure": "viewer RSS, no client (MB)", "value": round(rss0, 1)},
             {"measure": "viewer RSS, 1 client (MB)", "value": round(rss1, 1)},
