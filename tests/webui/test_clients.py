@@ -126,3 +126,24 @@ def test_views_follow_a_reload_and_share_the_data(viewer: tuple[ViewerApp, int])
     finally:
         c1.close()
         c2.close()
+
+
+def test_over_the_wire_each_client_sees_only_its_own_frames(viewer: tuple[ViewerApp, int]) -> None:
+    """What the clients receive: Play pressed by one (a GUI update message, as a browser sends it)
+    moves the frame line that client gets; the other client's line stays at its frame."""
+    app, port = viewer
+    ca, a = _join(app, port, "tok-ann")
+    cb, b = _join(app, port, "tok-coach")
+    try:
+        assert a is not None and b is not None
+        assert _wait(lambda: ca.frame() == 0 and cb.frame() == 0 and "Play" in ca.uuids)
+        b_updates = cb.frame_updates  # its own first frame line
+        ca.set_value("Play", True)
+        assert _wait(lambda: (ca.frame() or 0) >= 10)
+        assert a.playing and not b.playing
+        assert cb.frame() == 0 and b.frame == 0
+        assert ca.frame_updates >= 5 and cb.frame_updates == b_updates  # nothing of a's playback reached b
+    finally:
+        ca.close()
+        cb.close()
+    assert _wait(lambda: not app.clients)
