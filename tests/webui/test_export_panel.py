@@ -49,6 +49,9 @@ def test_download_sends_the_registry_bytes(
         assert app.export.format.options == tuple(FORMATS)
         assert {"json", "csv", "trc", "c3d", "mujoco"} <= set(app.export.format.options)
         names = {0: "Red", 1: "Blue"}
+        # The fixture's physics scene is two balls, not humanoids: a C3D of the physics source
+        # (which carries the floor forces of the humanoids) cannot be built from it.
+        app.display.source.value = "Filtered"
         for fmt, frames in (("csv", ""), ("trc", ""), ("c3d", "3:7"), ("json", "")):
             sent = _press(app, server, monkeypatch, fmt, frames)
             sel = ExportSelection(sdir, app.opts.source, (), (3, 7) if frames else None, names)
@@ -64,9 +67,9 @@ def test_download_sends_the_registry_bytes(
             "scene.xml",
         ]
         # The display's source decides what keypoint formats write.
-        app.display.source.value = "Filtered"
+        app.display.source.value = "Physics"
         sent = _press(app, server, monkeypatch, "csv")
-        assert sent[0][0] == "keypoints3d_filtered.csv"
+        assert sent[0][0] == "keypoints3d_physics.csv"
     finally:
         app.close()
 
