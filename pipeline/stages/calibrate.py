@@ -64,6 +64,16 @@ class CalibrateConfig:
     bundle: BundleConfig = field(default_factory=BundleConfig)
     """Bundle adjustment settings (``refine_focal``, thresholds, loss; a dict in
     ``session.json`` is accepted)."""
+    incremental: bool = True
+    """On a re-run (after an edit), keep the previous run's rig when the new one is within
+    ``hold_center_mm`` / ``hold_rotation_deg`` / ``hold_focal_rel`` of it in every camera and
+    the decision is the same, so that a local edit does not move every frame downstream."""
+    hold_center_mm: float = 5.0
+    """Largest camera centre change (mm, >= 0) that keeps the previous rig."""
+    hold_rotation_deg: float = 0.05
+    """Largest camera rotation change (degrees, >= 0) that keeps the previous rig."""
+    hold_focal_rel: float = 0.002
+    """Largest relative focal length change (>= 0) that keeps the previous rig."""
 
     def __post_init__(self) -> None:
         if isinstance(self.bundle, dict):
@@ -82,6 +92,10 @@ class CalibrateConfig:
             raise ValueError(f"CalibrateConfig.block_s must be > 0 s, got {self.block_s}")
         if self.min_blocks < 2:
             raise ValueError(f"CalibrateConfig.min_blocks must be >= 2, got {self.min_blocks}")
+        for name in ("hold_center_mm", "hold_rotation_deg", "hold_focal_rel"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"CalibrateConfig.{name} must be >= 0, got {v}")
 
 
 @dataclass(frozen=True)
@@ -237,6 +251,29 @@ def _result(
         rotation_change_deg=np.degrees(np.arccos(cos)),
         focal_scale=res.rig.K[:, 0, 0] / rig.K[:, 0, 0],
         converged=res.converged,
+    )
+
+
+def rig_change(a: CameraRig, b: CameraRig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per camera of two rigs with the same cameras: centre shift (mm), rotation change
+    (degrees) and relative focal change; ``ValueError`` when the cameras differ."""
+    if a.names != b.names:
+        raise ValueError(f"rig_change: different cameras {list(a.names)} vs {list(b.names)}")
+    R0, R1 = a.T_world_cam[:, :3, :3], b.T_world_cam[:, :3, :3]
+    cos = np.clip((np.einsum("vij,vij->v", R0, R1) - 1.0) / 2.0, -1.0, 1.0)
+    centre = 1000.0 * np.linalg.norm(a.centers_world_m - b.centers_world_m, axis=1)
+    return centre, np.degrees(np.arccos(cos)), np.abs(b.K[:, 0, 0] / a.K[:, 0, 0] - 1.0)
+
+
+def holds(previous: CameraRig, new: CameraRig, cfg: CalibrateConfig) -> bool:
+    """True when ``new`` is within the config's hold thresholds of ``previous`` in every camera."""
+    if previous.names != new.names:
+        return False
+    centre, rot, focal = rig_change(previous, new)
+    return bool(
+        np.all(centre <= cfg.hold_center_mm)
+        and np.all(rot <= cfg.hold_rotation_deg)
+        and np.all(focal <= cfg.hold_focal_rel)
     )
 
 

@@ -39,9 +39,8 @@ def _options(session: Path, triangulate: dict) -> None:
 
 
 def test_a_late_edit_leaves_the_early_frames_untouched(tmp_path: Path) -> None:
-    s = write_tiny_session(
-        tmp_path / "s", stages=("detect2d", "track", "associate", "triangulate"), n_frames=N_FRAMES
-    )
+    stages = ("detect2d", "track", "associate", "calibrate", "triangulate")
+    s = write_tiny_session(tmp_path / "s", stages=stages, n_frames=N_FRAMES)
     store = ArtifactStore(s)
     reports = {r.stage: r for r in run(s)}
     assert reports["triangulate"].metrics["incremental"] == "full run: no previous run"
@@ -53,6 +52,10 @@ def test_a_late_edit_leaves_the_early_frames_untouched(tmp_path: Path) -> None:
     reports = {r.stage: r for r in run(s)}
     tri = reports["triangulate"]
     assert tri.action == "ran" and tri.metrics["incremental"].startswith("bone lengths held")
+    # The calibrate stage re-ran on the edited association and kept its rig (same decision, within the thresholds).
+    assert reports["calibrate"].action == "ran" and reports["calibrate"].metrics["incremental"].startswith(
+        "previous rig kept"
+    )
     after = store.load("triangulate", "keypoints3d", Keypoints3D)
     early = slice(0, EDIT - SMOOTHER_REACH)
     # Unchanged for the fit's incremental re-run: within its input tolerance (the smoother's

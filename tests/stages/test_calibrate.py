@@ -117,3 +117,29 @@ def test_config() -> None:
         CalibrateConfig(mode="maybe")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="min_improvement"):
         CalibrateConfig(min_improvement=1.5)
+
+
+def test_hold_thresholds_compare_two_rigs_per_camera() -> None:
+    import dataclasses
+
+    from pipeline.stages.calibrate import holds, rig_change
+    from tests.conftest import make_rig
+
+    rig = make_rig(3)
+    T = rig.T_world_cam.copy()
+    T[1, :3, 3] += [0.004, 0.0, 0.0]  # camera 2 moves 4 mm
+    near = dataclasses.replace(rig, T_world_cam=T)
+    centre, rot, focal = rig_change(rig, near)
+    np.testing.assert_allclose(centre, [0.0, 4.0, 0.0], atol=1e-9)
+    assert rot.max() == pytest.approx(0.0, abs=1e-6) and focal.max() == 0.0
+    cfg = CalibrateConfig()
+    assert holds(rig, near, cfg) and holds(rig, rig, cfg)
+    T2 = T.copy()
+    T2[2, :3, 3] += [0.0, 0.0, 0.006]  # 6 mm: beyond hold_center_mm
+    assert not holds(rig, dataclasses.replace(rig, T_world_cam=T2), cfg)
+    K = rig.K.copy()
+    K[0, 0, 0] *= 1.01
+    assert not holds(rig, dataclasses.replace(rig, K=K), cfg)
+    assert not holds(rig, make_rig(2), cfg)
+    with pytest.raises(ValueError, match="hold_center_mm"):
+        CalibrateConfig(hold_center_mm=-1.0)

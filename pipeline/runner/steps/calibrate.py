@@ -16,8 +16,9 @@ import numpy as np
 from pipeline.runner.rig import RIG_ARTIFACT
 from pipeline.runner.spec import StageContext, StageSpec
 from pipeline.schema.association import Association
+from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
-from pipeline.stages.calibrate import CalibrateConfig, CalibrationResult, summary
+from pipeline.stages.calibrate import CalibrateConfig, CalibrationResult, holds, rig_change, summary
 from pipeline.stages.calibrate import run as run_calibrate
 
 
@@ -56,7 +57,22 @@ def _execute(ctx: StageContext, cfg: CalibrateConfig) -> dict[str, Any]:
     result = run_calibrate(tracks, assoc, ctx.input_rig, cfg)
     ctx.progress(1, 1, "adopted" if result.adopted else "input calibration kept")
     ctx.metrics.update({k: v for k, v in summary(result).items() if v is not None})
-    return {RIG_ARTIFACT: result.rig, "report.json": json.dumps(report(result), indent=2)}
+    rig = result.rig
+    prev = ctx.reusable_previous(cfg.incremental)
+    if prev is not None:
+        old = ctx.load_previous(RIG_ARTIFACT, CameraRig)
+        old_adopted = bool(prev.manifest.metrics.get("adopted"))
+        if old_adopted == result.adopted and holds(old, rig, cfg):
+            rig = old
+            centre, rot, _ = rig_change(old, result.rig)
+            ctx.metrics["incremental"] = (
+                f"previous rig kept (the new one is within {centre.max():.2f} mm, {rot.max():.3f} deg of it)"
+            )
+        else:
+            ctx.metrics["incremental"] = (
+                "new rig: it moved beyond the hold thresholds, or the decision changed"
+            )
+    return {RIG_ARTIFACT: rig, "report.json": json.dumps(report(result), indent=2)}
 
 
 SPEC = StageSpec(
