@@ -79,7 +79,7 @@ def run_bench(
             shape_s=m.get("time_shape_s", float("nan")),
             pose_s=m.get("time_pose_s", float("nan")),
             load_s=load_s,
-            cpu_s=m.get("time_shape_cpu_s", float("nan")) + m.get("time_pose_cpu_s", float("nan")),
+            cpu_s=float(m.get("time_shape_cpu_s", float("nan"))) + float(m.get("time_pose_cpu_s", float("nan"))),
             fps_per_person=n_frames / max(total / max(res.bodyfit.person_ids.shape[0], 1), 1e-9),
             reproj_px=m.get("reproj_median_px", float("nan")),
         )

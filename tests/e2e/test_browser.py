@@ -24,6 +24,8 @@ import httpx
 import numpy as np
 import pytest
 
+from tests.live_server import wait_until_healthy
+
 pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.timeout(600)]  # slow: ~50 s of the fast tier
 
 CHROMIUM = "/usr/bin/chromium"
@@ -92,16 +94,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
     base = f"http://127.0.0.1:{port}"
     served = Served(base, tokens, 0, proc, log_path, out_dir)
     try:
-        t_end = time.monotonic() + 60
-        while True:
-            try:
-                if httpx.get(base + "/api/health", timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            if proc.poll() is not None or time.monotonic() > t_end:
-                raise AssertionError(f"cornerman serve did not start:\n{log_path.read_text()[-3000:]}")
-            time.sleep(0.3)
+        wait_until_healthy(base, proc, log_path)
         with served.api("annotator") as api:
             sessions = api.get("/sessions").json()
             assert len(sessions) == 1, sessions

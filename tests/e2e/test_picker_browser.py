@@ -19,6 +19,7 @@ import httpx
 import pytest
 
 from tests.e2e.test_browser import CHROMIUM, CHROMIUM_ARGS, _free_port
+from tests.live_server import wait_until_healthy
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.timeout(400)]
 STAGES = ("detect2d", "track", "associate", "triangulate")
@@ -48,16 +49,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
                                 start_new_session=True)
     base = f"http://127.0.0.1:{port}"
     try:
-        t_end = time.monotonic() + 60
-        while True:
-            try:
-                if httpx.get(base + "/api/health", timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            if proc.poll() is not None or time.monotonic() > t_end:
-                raise AssertionError(f"cornerman serve did not start:\n{log_path.read_text()[-3000:]}")
-            time.sleep(0.3)
+        wait_until_healthy(base, proc, log_path)
         yield {"base": base, "token": token, "bout": bout, "out_dir": out_dir}
     finally:
         proc.send_signal(signal.SIGINT)

@@ -27,6 +27,7 @@ import httpx
 import pytest
 
 from server.viewer_bench import cpu_s, viewer_pids
+from tests.live_server import wait_until_healthy
 from tests.webui.fixtures import build_session
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.timeout(600)]
@@ -78,15 +79,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
             env=env, stdout=logf, stderr=subprocess.STDOUT, start_new_session=True)
     base = f"http://127.0.0.1:{port}"
     try:
-        t_end = time.monotonic() + 60
-        while True:
-            try:
-                if httpx.get(base + "/api/health", timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            assert proc.poll() is None and time.monotonic() < t_end, (root / "uvicorn.log").read_text()[-3000:]
-            time.sleep(0.2)
+        wait_until_healthy(base, proc, root / "uvicorn.log")
         headers = {"Authorization": f"Bearer {tokens['e2e-admin']}"}
         r = httpx.post(base + "/api/sessions/from-folder", json={"path": str(src), "name": "clients"}, headers=headers)
         assert r.status_code == 201, r.text

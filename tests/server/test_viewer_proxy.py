@@ -32,6 +32,7 @@ from server.api.deps import SESSION_COOKIE
 from server.cli import create_user
 from server.loadtest import free_port
 from server.viewer_bench import camera_message
+from tests.live_server import wait_until_healthy
 from tests.webui.fixtures import build_session
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300)]
@@ -90,15 +91,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
             env=env, stdout=logf, stderr=subprocess.STDOUT, start_new_session=True)
     base = f"http://127.0.0.1:{port}"
     try:
-        t_end = time.monotonic() + 60
-        while True:
-            try:
-                if httpx.get(base + "/api/health", timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            assert proc.poll() is None and time.monotonic() < t_end, log_path.read_text()[-3000:]
-            time.sleep(0.2)
+        wait_until_healthy(base, proc, log_path)
         srv = Server(base, log_path, tokens, 0, 0, sdir, other, home)
         with srv.api("admin") as api:
             made = []
