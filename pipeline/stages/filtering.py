@@ -45,8 +45,12 @@ class FilterConfig:
     (0 disables the bone check)."""
     hold_bone_rel: float = 0.02
     """On a re-run with the previous run's bone lengths (``run_holding``'s ``held``), a
-    person's median bone length that moved by at most this fraction (>= 0) keeps its
-    previous value, so a local edit leaves the other frames exactly as they were; 0 = never."""
+    person's median bone length that moved by at most this fraction (>= 0), or by at most
+    ``hold_bone_m``, keeps its previous value, so a local edit leaves the other frames
+    exactly as they were; both 0 = never."""
+    hold_bone_m: float = 0.01
+    """The same hold in metres (>= 0): short bones (eyes, heels) move by more than 2 % when
+    a few frames change."""
     spline_max_gap_s: float = 0.2
     """Gaps up to this long are filled by cubic-spline interpolation."""
     smoother: Literal["kalman", "none"] = "kalman"
@@ -74,12 +78,22 @@ class FilterConfig:
 
     def __post_init__(self) -> None:
         positive = ("jerk_std", "meas_std_m", "outlier_dist_m", "ray_gate_px")
-        non_negative = ("bone_tolerance", "hold_bone_rel", "spline_max_gap_s", "kalman_max_gap_s", "ray_iterations", "bone_ray_std_m")
+        non_negative = (
+            "bone_tolerance",
+            "hold_bone_rel",
+            "hold_bone_m",
+            "spline_max_gap_s",
+            "kalman_max_gap_s",
+            "ray_iterations",
+            "bone_ray_std_m",
+        )
         for name in positive + non_negative:
             v = getattr(self, name)
             ok = np.isfinite(v) and (v > 0 if name in positive else v >= 0)
             if not ok:
-                raise ValueError(f"FilterConfig.{name} must be {'> 0' if name in positive else '>= 0'}, got {v!r}")
+                raise ValueError(
+                    f"FilterConfig.{name} must be {'> 0' if name in positive else '>= 0'}, got {v!r}"
+                )
         if self.smoother not in ("kalman", "none"):
             raise ValueError(f"FilterConfig.smoother must be 'kalman' or 'none', got {self.smoother!r}")
 
@@ -147,12 +161,21 @@ def run_holding(
     uniform time step) or ``meas_info`` has the wrong shape.
     """
     if raw.n_frames > 1 and np.any(np.diff(raw.frame_indices) != 1):
-        raise ValueError(f"filtering needs consecutive frame_indices, got gaps in {raw.frame_indices[:10]}...")
+        raise ValueError(
+            f"filtering needs consecutive frame_indices, got gaps in {raw.frame_indices[:10]}..."
+        )
     same = held is not None and np.array_equal(held.person_ids, raw.person_ids)
     rigid = hold_lengths(
-        bone_medians(raw.xyz_m, raw.valid, raw.joint_names, "rigid"), held.rigid_m if same and held else None, cfg.hold_bone_rel
+        bone_medians(raw.xyz_m, raw.valid, raw.joint_names, "rigid"),
+        held.rigid_m if same and held else None,
+        cfg.hold_bone_rel,
+        cfg.hold_bone_m,
     )
-    limbs = held.limbs_m if same and held else np.full((raw.n_persons, len(bone_indices(raw.joint_names, BONES))), np.nan)
+    limbs = (
+        held.limbs_m
+        if same and held
+        else np.full((raw.n_persons, len(bone_indices(raw.joint_names, BONES))), np.nan)
+    )
     if not cfg.enabled or raw.n_frames == 0:
         return raw.replace(source="filtered"), BoneLengths(raw.person_ids.copy(), rigid, limbs)
     valid = raw.valid.copy()
@@ -162,16 +185,25 @@ def run_holding(
     fps = raw.fps
     xyz, filled = fill_gaps_spline(raw.xyz_m, valid, max(0, int(round(cfg.spline_max_gap_s * fps))))
     meas = valid | filled
-    limbs = hold_lengths(bone_medians(xyz, meas, raw.joint_names, "limbs"), limbs if same else None, cfg.hold_bone_rel)
+    limbs = hold_lengths(
+        bone_medians(xyz, meas, raw.joint_names, "limbs"),
+        limbs if same else None,
+        cfg.hold_bone_rel,
+        cfg.hold_bone_m,
+    )
     meas_conf = np.where(valid, conf, np.where(filled, 0.5 * _neighbour_conf(conf, valid), 0.0))
     if cfg.smoother == "kalman":
         iso = (np.maximum(meas_conf, 0.05) / cfg.meas_std_m) ** 2
         info = iso[..., None, None] * np.eye(3)
         if meas_info is not None:
             if meas_info.shape != raw.valid.shape + (3, 3):
-                raise ValueError(f"meas_info: expected shape {raw.valid.shape + (3, 3)}, got {meas_info.shape}")
+                raise ValueError(
+                    f"meas_info: expected shape {raw.valid.shape + (3, 3)}, got {meas_info.shape}"
+                )
             # Triangulation covariance (regularised to <= 1 m std) plus an isotropic floor.
-            cov = inv_sym3(meas_info + np.eye(3)) + (cfg.meas_std_m / np.maximum(conf, 0.2))[..., None, None] ** 2 * np.eye(3)
+            cov = inv_sym3(meas_info + np.eye(3)) + (cfg.meas_std_m / np.maximum(conf, 0.2))[
+                ..., None, None
+            ] ** 2 * np.eye(3)
             info = np.where(valid[..., None, None], inv_sym3(cov), info)
         est, bridged = kalman_smooth(xyz, meas, info, fps, cfg)
         if rays is not None and cfg.ray_iterations > 0:
@@ -204,7 +236,9 @@ def run_holding(
     else:
         bridged = np.zeros_like(meas)
     out_valid = meas | bridged
-    out_conf = np.where(valid, conf, np.where(filled, meas_conf, np.where(bridged, 0.25 * _neighbour_conf(conf, valid), 0.0)))
+    out_conf = np.where(
+        valid, conf, np.where(filled, meas_conf, np.where(bridged, 0.25 * _neighbour_conf(conf, valid), 0.0))
+    )
     return raw.replace(
         xyz_m=np.where(out_valid[..., None], xyz, 0.0),
         valid=out_valid,
@@ -215,7 +249,9 @@ def run_holding(
     ), BoneLengths(raw.person_ids.copy(), rigid, limbs)
 
 
-def bone_medians(xyz: np.ndarray, located: np.ndarray, joint_names: tuple[str, ...], bone_set: str) -> np.ndarray:
+def bone_medians(
+    xyz: np.ndarray, located: np.ndarray, joint_names: tuple[str, ...], bone_set: str
+) -> np.ndarray:
     """(persons, bones) median length (m) of each bone of ``bone_set`` (``"rigid"``:
     ``RIGID_BONES``; ``"limbs"``: ``BONES``) over the frames where both ends are located;
     NaN for a bone never located."""
@@ -230,14 +266,14 @@ def bone_medians(xyz: np.ndarray, located: np.ndarray, joint_names: tuple[str, .
         return np.nanmedian(np.where(ok, length, np.nan), axis=0)
 
 
-def hold_lengths(new: np.ndarray, held: np.ndarray | None, tol_rel: float) -> np.ndarray:
+def hold_lengths(new: np.ndarray, held: np.ndarray | None, tol_rel: float, tol_m: float = 0.0) -> np.ndarray:
     """``new`` bone lengths, except where ``held`` (the previous run's, same shape) is within
-    ``tol_rel`` (relative) of it: there the held length stays, so that an edit that barely
-    moves a person's medians does not move every frame of the bout."""
-    if held is None or held.shape != new.shape or tol_rel <= 0:
+    ``max(tol_rel * held, tol_m)`` of it: there the held length stays, so that an edit that
+    barely moves a person's medians does not move every frame of the bout."""
+    if held is None or held.shape != new.shape or (tol_rel <= 0 and tol_m <= 0):
         return new
     with np.errstate(invalid="ignore"):
-        keep = (np.abs(new - held) <= tol_rel * held) | (np.isnan(new) & np.isnan(held))
+        keep = (np.abs(new - held) <= np.maximum(tol_rel * held, tol_m)) | (np.isnan(new) & np.isnan(held))
     return np.where(keep, held, new)
 
 
@@ -288,7 +324,9 @@ def fill_gaps_spline(xyz: np.ndarray, valid: np.ndarray, max_gap: int) -> tuple[
     F = valid.shape[0]
     idx = np.broadcast_to(np.arange(F).reshape((F,) + (1,) * (valid.ndim - 1)), valid.shape)
     lv = np.maximum.accumulate(np.where(valid, idx, -1), axis=0)  # last valid <= t
-    nv = np.flip(np.minimum.accumulate(np.flip(np.where(valid, idx, F), axis=0), axis=0), axis=0)  # next valid >= t
+    nv = np.flip(
+        np.minimum.accumulate(np.flip(np.where(valid, idx, F), axis=0), axis=0), axis=0
+    )  # next valid >= t
     need = (~valid) & (lv >= 0) & (nv < F) & (nv - lv - 1 <= max_gap)
     if not need.any():
         return out, need
@@ -307,7 +345,12 @@ def fill_gaps_spline(xyz: np.ndarray, valid: np.ndarray, max_gap: int) -> tuple[
     m2 = np.where((t3 < F)[:, None], (x3 - x1) / np.maximum(t3 - t1, 1)[:, None], chord)
     s_ = ((f - t1) / (t2 - t1))[:, None]
     s2, s3 = s_ * s_, s_ * s_ * s_
-    out[f, p, j] = (2 * s3 - 3 * s2 + 1) * x1 + (s3 - 2 * s2 + s_) * h * m1 + (-2 * s3 + 3 * s2) * x2 + (s3 - s2) * h * m2
+    out[f, p, j] = (
+        (2 * s3 - 3 * s2 + 1) * x1
+        + (s3 - 2 * s2 + s_) * h * m1
+        + (-2 * s3 + 3 * s2) * x2
+        + (s3 - s2) * h * m2
+    )
     return out, need
 
 
@@ -419,7 +462,10 @@ def _ray_terms(
     proj = Xc[:, :2] / zs[:, None]
     r = rays.xn[idx] - proj
     R = P[:, :, :3]
-    J = np.stack([R[:, 0] - proj[:, :1] * R[:, 2], R[:, 1] - proj[:, 1:] * R[:, 2]], axis=1) / zs[:, None, None]
+    J = (
+        np.stack([R[:, 0] - proj[:, :1] * R[:, 2], R[:, 1] - proj[:, 1:] * R[:, 2]], axis=1)
+        / zs[:, None, None]
+    )
     ok = front & (np.linalg.norm(r, axis=1) * rays.focal_px[v] <= gate_px)
     s = np.where(ok, (rays.focal_px[v] * rays.conf[idx] / rays.pixel_std_px) ** 2, 0.0)
     Xw = X_world[idx]

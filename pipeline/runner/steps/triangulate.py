@@ -22,7 +22,7 @@ def _execute(ctx: StageContext, cfg: TriangulateConfig) -> dict[str, Any]:
         if "bone_lengths.npz" in prev.manifest.outputs:
             held = ctx.load_previous("bone_lengths", BoneLengths)
             ctx.metrics["incremental"] = (
-                "bone lengths held from the previous run where they moved <= hold_bone_rel"
+                "bone lengths held from the previous run where they moved <= hold_bone_rel or hold_bone_m"
             )
         else:
             ctx.metrics["incremental"] = "full run: the previous run stored no bone lengths"
