@@ -15,9 +15,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.schema.analytics import HANDS, OUTCOMES, PUNCH_TYPES
 from pipeline.schema.annotations import (
+    EVENT_KINDS,
+    AddEvent,
     Annotation,
     AssignIdentity,
+    CorrectEvent,
+    DeleteEvent,
     FixKeypoint,
     LabelContact,
     MarkInvalid,
@@ -63,8 +68,8 @@ def _check_types(a: Annotation, d: dict) -> None:
     for f in _INT_FIELDS:
         if f in d and d[f] is not None and not _is_int(d[f]):
             raise ValueError(f"{a.kind}: {f} must be an integer, got {d[f]!r}")
-    for f in ("view", "joint", "part_a", "part_b"):
-        if f in d and not isinstance(d[f], str):
+    for f in ("view", "joint", "part_a", "part_b", "event", "hand", "punch_type", "outcome"):
+        if f in d and d[f] is not None and not isinstance(d[f], str):
             raise ValueError(f"{a.kind}: {f} must be a string, got {d[f]!r}")
     for f in ("x_px", "y_px"):
         if f in d and (isinstance(d[f], bool) or not isinstance(d[f], int | float) or not np.isfinite(d[f])):
@@ -90,7 +95,7 @@ def _check_frames(a: Annotation, d: dict, n_frames: int | None) -> None:
 
 
 def _check_persons(a: Annotation, d: dict, person_ids: tuple[int, ...] | None) -> None:
-    names = ("person",) if isinstance(a, AssignIdentity) else ("person_a", "person_b")
+    names = ("person",) if isinstance(a, AssignIdentity | CorrectEvent | AddEvent | DeleteEvent) else ("person_a", "person_b")
     for f in names:
         if f not in d:
             continue
@@ -102,6 +107,35 @@ def _check_persons(a: Annotation, d: dict, person_ids: tuple[int, ...] | None) -
             raise ValueError(f"{a.kind}: {f} {d[f]} is not a person of this session ({known}{hint})")
     if isinstance(a, SwapIdentities) and a.person_a == a.person_b:
         raise ValueError(f"{a.kind}: person_a and person_b are both {a.person_a}; a swap needs two persons")
+
+
+def _check_event(a: CorrectEvent | AddEvent | DeleteEvent) -> None:
+    """Event edits: a known event kind, punch type, outcome and hand, and the fields each needs."""
+    if a.event not in EVENT_KINDS:
+        raise ValueError(f"{a.kind}: event {a.event!r} is not one of {list(EVENT_KINDS)}")
+    if isinstance(a, DeleteEvent):
+        return
+    for f, vocab in (("punch_type", PUNCH_TYPES), ("outcome", OUTCOMES), ("hand", HANDS)):
+        v = getattr(a, f, None)
+        if v is not None and v not in vocab:
+            raise ValueError(f"{a.kind}: {f} {v!r} is not one of {list(vocab)}")
+    if isinstance(a, CorrectEvent):
+        if a.event != "punch":
+            raise ValueError(f"{a.kind}: only a punch's type or outcome can be corrected (event {a.event!r}); "
+                             "delete the event and add the right one instead")
+        if a.punch_type is None and a.outcome is None:
+            raise ValueError(f"{a.kind}: give punch_type and/or outcome (both are missing)")
+        return
+    if a.event == "punch":
+        missing = [f for f in ("punch_type", "outcome") if getattr(a, f) is None]
+        if missing:
+            raise ValueError(f"{a.kind}: an added punch needs {' and '.join(missing)}")
+    else:
+        given = [f for f in ("hand", "punch_type", "outcome") if getattr(a, f) is not None]
+        if given:
+            raise ValueError(f"{a.kind}: {', '.join(given)} only apply to a punch, not to a {a.event}")
+    if a.frame is not None and not a.frame_start <= a.frame <= a.frame_end:
+        raise ValueError(f"{a.kind}: frame {a.frame} (the peak) is outside frames {a.frame_start}–{a.frame_end}")
 
 
 def _frames_of(tracks: Tracks2D, v: int, track: int) -> np.ndarray:
@@ -145,12 +179,16 @@ def check_annotation(a: Annotation, bounds: AnnotationBounds) -> None:
     With ``tracks``: the named track has a detection at the edit's frame (``mark_invalid``,
     ``fix_keypoint``), at or after it (``split_track``), within the span (``assign_identity``);
     both merged tracks exist and differ. ``fix_keypoint``: a known joint, a pixel inside the image.
-    ``label_contact``: non-empty body-part names.
+    ``label_contact``: non-empty body-part names. Event edits (``correct_event``, ``add_event``,
+    ``delete_event``): a known event kind, punch type, outcome and hand; a correction changes a
+    punch's type or outcome; an added punch has both, and its peak ``frame`` lies in its span.
     """
     d = annotation_to_dict(a)
     _check_types(a, d)
     _check_frames(a, d, bounds.n_frames)
     _check_persons(a, d, bounds.person_ids)
+    if isinstance(a, CorrectEvent | AddEvent | DeleteEvent):
+        _check_event(a)
     if isinstance(a, LabelContact):
         for f in ("part_a", "part_b"):
             if not d[f].strip():

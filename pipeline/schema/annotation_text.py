@@ -5,8 +5,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from pipeline.schema.annotations import (
+    AddEvent,
     Annotation,
     AssignIdentity,
+    CorrectEvent,
+    DeleteEvent,
     FixKeypoint,
     LabelContact,
     MarkInvalid,
@@ -47,4 +50,14 @@ def describe_annotation(a: Annotation, names: Mapping[int, str] | None = None) -
     if isinstance(a, LabelContact):
         return (f"contact {_who(a.person_a, names)} {a.part_a} → {_who(a.person_b, names)} {a.part_b}, "
                 f"{_frames(a.frame_start, a.frame_end)}")
+    if isinstance(a, CorrectEvent):
+        changes = [f"{k} → {v}" for k, v in (("type", a.punch_type), ("outcome", a.outcome)) if v is not None]
+        return f"correct {_who(a.person, names)} {a.event} at frame {a.frame}: {', '.join(changes) or 'no change'}"
+    if isinstance(a, AddEvent):
+        what = " ".join(x for x in (a.hand, a.punch_type, a.event if a.punch_type is None else None) if x)
+        peak = f", peak at frame {a.frame}" if a.frame is not None else ""
+        result = f", {a.outcome}" if a.outcome is not None else ""
+        return f"add {_who(a.person, names)} {what}, {_frames(a.frame_start, a.frame_end)}{peak}{result}"
+    if isinstance(a, DeleteEvent):
+        return f"delete {_who(a.person, names)} {a.event} at frame {a.frame}"
     raise ValueError(f"no description for edit kind {a.kind!r}")

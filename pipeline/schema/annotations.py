@@ -18,8 +18,12 @@ from pathlib import Path
 from typing import Literal
 
 AnnotationKind = Literal[
-    "assign_identity", "swap_identities", "split_track", "merge_tracks", "mark_invalid", "fix_keypoint", "label_contact"
+    "assign_identity", "swap_identities", "split_track", "merge_tracks", "mark_invalid", "fix_keypoint", "label_contact",
+    "correct_event", "add_event", "delete_event",
 ]
+
+EVENT_KINDS: tuple[str, ...] = ("punch", "slip", "duck", "clinch")
+"""Events of the analyze stage an annotator can correct, add or delete (``BoutEvents`` rows)."""
 
 
 @dataclass(frozen=True)
@@ -104,7 +108,54 @@ class LabelContact:
     kind: str = "label_contact"
 
 
-Annotation = AssignIdentity | SwapIdentities | SplitTrack | MergeTracks | MarkInvalid | FixKeypoint | LabelContact
+@dataclass(frozen=True)
+class CorrectEvent:
+    """The punch of ``person`` whose strike (peak frame) lies within the analyze stage's match
+    tolerance (``CorrectionConfig.match_frames``, ±2 frames) of ``frame`` gets ``punch_type``
+    and/or ``outcome`` (``None`` = keep the detector's). ``event`` must be ``"punch"``."""
+
+    person: int
+    event: str
+    frame: int
+    kind: str = "correct_event"
+    punch_type: str | None = None
+    outcome: str | None = None
+
+
+@dataclass(frozen=True)
+class AddEvent:
+    """An event the detector missed: ``event`` (``EVENT_KINDS``) of ``person`` over the inclusive
+    frames ``[frame_start, frame_end]``, its peak/strike at ``frame`` (``None`` = found on the
+    3D). Punches need ``punch_type`` and ``outcome``; ``hand`` ``None`` = the faster wrist. A
+    clinch is shared: ``person`` is either athlete."""
+
+    person: int
+    event: str
+    frame_start: int
+    frame_end: int
+    kind: str = "add_event"
+    frame: int | None = None
+    hand: str | None = None
+    punch_type: str | None = None
+    outcome: str | None = None
+
+
+@dataclass(frozen=True)
+class DeleteEvent:
+    """The detector's ``event`` of ``person`` at ``frame`` is not one: it is removed (matched as
+    for ``CorrectEvent``; a clinch by ``frame`` within its span, either athlete). Deleting a
+    punch also deletes the evasions of it."""
+
+    person: int
+    event: str
+    frame: int
+    kind: str = "delete_event"
+
+
+Annotation = (
+    AssignIdentity | SwapIdentities | SplitTrack | MergeTracks | MarkInvalid | FixKeypoint | LabelContact
+    | CorrectEvent | AddEvent | DeleteEvent
+)
 
 ANNOTATION_TYPES: dict[str, type] = {
     "assign_identity": AssignIdentity,
@@ -114,6 +165,9 @@ ANNOTATION_TYPES: dict[str, type] = {
     "mark_invalid": MarkInvalid,
     "fix_keypoint": FixKeypoint,
     "label_contact": LabelContact,
+    "correct_event": CorrectEvent,
+    "add_event": AddEvent,
+    "delete_event": DeleteEvent,
 }
 
 # Which stage consumes which edit kinds (the first stage an edit makes stale).
@@ -125,6 +179,9 @@ CONSUMED_BY: dict[str, str] = {
     "assign_identity": "associate",
     "swap_identities": "associate",
     "label_contact": "evaluate",
+    "correct_event": "analyze",
+    "add_event": "analyze",
+    "delete_event": "analyze",
 }
 
 
