@@ -12,6 +12,7 @@ from typing import Any
 
 from pipeline.dataset.layout import FORMAT_ID, JSON_KINDS, KEYPOINT_SOURCES, SESSION_ID
 from pipeline.io.events_export import EVENTS_FORMAT_ID
+from pipeline.schema.analytics import EVENT_SOURCES
 from pipeline.schema.annotations import ANNOTATION_TYPES
 
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
@@ -141,14 +142,20 @@ def _videos() -> dict[str, Any]:
     })  # fmt: skip
 
 
+def _with_source(props: dict[str, Any]) -> dict[str, Any]:
+    """An event row; ``source`` (who made it, ``EVENT_SOURCES``) is optional for releases made
+    before it existed."""
+    return _obj({**props, "source": {"enum": list(EVENT_SOURCES)}}, required=tuple(props))
+
+
 def _events() -> dict[str, Any]:
     frames = {"start_frame": _NAT, "end_frame": _NAT, "start_s": _NUM, "end_s": _NUM}
-    punch = _obj({
+    punch = _with_source({
         "athlete_id": _NAT, "athlete": _STR, "hand": _STR, "type": _STR, **frames, "peak_frame": _NAT,
         "peak_s": _NUM, "peak_speed_mps": _NUM, "extension": _NUM, "target": _STR, "outcome": _STR,
         "confidence": {"type": "number", "minimum": 0, "maximum": 1},
     })  # fmt: skip
-    evade = _obj({
+    evade = _with_source({
         "athlete_id": _NAT, "athlete": _STR, "kind": _STR, **frames, "peak_frame": _NAT, "peak_s": _NUM,
         "displacement_m": _NUM, "punch": {"type": "integer", "minimum": -1},
     })  # fmt: skip
@@ -159,12 +166,13 @@ def _events() -> dict[str, Any]:
         "athletes": {"type": "array", "items": _obj({"id": _NAT, "name": _STR})},
         "punches": {"type": "array", "items": punch},
         "evades": {"type": "array", "items": evade},
-        "clinches": {"type": "array", "items": _obj(frames)},
+        "clinches": {"type": "array", "items": _with_source(frames)},
     })  # fmt: skip
 
 
 _JSON_TYPES: dict[Any, dict[str, Any]] = {
-    str: _STR, int: {"type": "integer"}, float: _NUM, int | None: {"type": "integer"},  # None is omitted from the JSON
+    str: _STR, int: {"type": "integer"}, float: _NUM,
+    int | None: {"type": "integer"}, str | None: _STR,  # None is omitted from the JSON
 }
 
 

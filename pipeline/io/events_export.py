@@ -9,14 +9,16 @@ JSON (``events_to_json``)::
       "athletes": [{"id": 0, "name": "Red"}, ...],
       "punches": [{"athlete_id", "athlete", "hand", "type", "start_frame", "peak_frame",
                    "end_frame", "start_s", "peak_s", "end_s", "peak_speed_mps", "extension",
-                   "target", "outcome", "confidence"}, ...],
+                   "target", "outcome", "confidence", "source"}, ...],
       "evades": [{"athlete_id", "athlete", "kind", "start_frame", "peak_frame", "end_frame",
-                  "start_s", "peak_s", "end_s", "displacement_m", "punch"}, ...],
-      "clinches": [{"start_frame", "end_frame", "start_s", "end_s"}, ...]
+                  "start_s", "peak_s", "end_s", "displacement_m", "punch", "source"}, ...],
+      "clinches": [{"start_frame", "end_frame", "start_s", "end_s", "source"}, ...]
     }
 
 Times are seconds from frame 0 (``frame / fps``); ``punch`` is the index in ``punches``
-of the punch evaded. CSV (``events_to_csv``) has one row per event with the union of
+of the punch evaded; ``source`` says who made the event: ``detector``, ``corrected`` (an
+annotator changed its type or outcome) or ``annotator`` (added by hand;
+``pipeline.schema.analytics.EVENT_SOURCES``). CSV (``events_to_csv``) has one row per event with the union of
 those columns and ``event`` = punch, slip, duck or clinch.
 """
 
@@ -36,6 +38,7 @@ ANALYZE_STAGE = "analyze"
 CSV_COLUMNS: tuple[str, ...] = (
     "event", "athlete_id", "athlete", "start_frame", "peak_frame", "end_frame", "start_s", "peak_s", "end_s",
     "hand", "type", "peak_speed_mps", "extension", "target", "outcome", "confidence", "displacement_m", "punch",
+    "source",
 )  # fmt: skip
 
 
@@ -75,6 +78,7 @@ def events_to_json(events: BoutEvents, names: dict[int, str] | None = None, sour
             "peak_speed_mps": round(float(events.punch_peak_speed_mps[i]), 2),
             "extension": round(float(events.punch_extension[i]), 3), "target": str(events.punch_target[i]),
             "outcome": str(events.punch_outcome[i]), "confidence": round(float(events.punch_confidence[i]), 3),
+            "source": str(events.punch_source[i]),
         }
         for i in range(events.n_punches)
     ]  # fmt: skip
@@ -85,13 +89,13 @@ def events_to_json(events: BoutEvents, names: dict[int, str] | None = None, sour
             "peak_frame": int(events.evade_peak_frame[i]), "end_frame": int(events.evade_end_frame[i]),
             "start_s": t(events.evade_start_frame[i]), "peak_s": t(events.evade_peak_frame[i]),
             "end_s": t(events.evade_end_frame[i]), "displacement_m": round(float(events.evade_displacement_m[i]), 3),
-            "punch": int(events.evade_punch[i]),
+            "punch": int(events.evade_punch[i]), "source": str(events.evade_source[i]),
         }
         for i in range(events.n_evades)
     ]  # fmt: skip
     clinches = [
-        {"start_frame": int(s), "end_frame": int(e), "start_s": t(s), "end_s": t(e)}
-        for s, e in zip(events.clinch_start_frame, events.clinch_end_frame, strict=True)
+        {"start_frame": int(s), "end_frame": int(e), "start_s": t(s), "end_s": t(e), "source": str(src)}
+        for s, e, src in zip(events.clinch_start_frame, events.clinch_end_frame, events.clinch_source, strict=True)
     ]
     return {
         "format": EVENTS_FORMAT_ID,

@@ -173,6 +173,8 @@ def slice_bout(
         punch_end_frame=events.punch_end_frame[keep], punch_peak_speed_mps=events.punch_peak_speed_mps[keep],
         punch_extension=events.punch_extension[keep], punch_target=events.punch_target[keep],
         punch_outcome=events.punch_outcome[keep], punch_confidence=events.punch_confidence[keep],
+        punch_source=events.punch_source[keep], evade_source=events.evade_source[ev_keep],
+        clinch_source=events.clinch_source[c_keep],
         evade_person=events.evade_person[ev_keep], evade_kind=events.evade_kind[ev_keep],
         evade_start_frame=events.evade_start_frame[ev_keep], evade_peak_frame=events.evade_peak_frame[ev_keep],
         evade_end_frame=events.evade_end_frame[ev_keep], evade_displacement_m=events.evade_displacement_m[ev_keep],

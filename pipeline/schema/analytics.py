@@ -8,7 +8,7 @@ vocabularies below (npz without pickle).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -34,6 +34,10 @@ OUTCOMES: tuple[str, ...] = ("landed", "blocked", "missed")
 missed: it touches neither."""
 EVADE_KINDS: tuple[str, ...] = ("slip", "duck")
 """slip: the head leaves the punch's line sideways; duck: it drops under it."""
+EVENT_SOURCES: tuple[str, ...] = ("detector", "corrected", "annotator")
+"""Who made an event: the detector, the detector with an annotator's correction of its type or
+outcome (``correct_event``), or an annotator (``add_event``; its speed, extension and
+displacement are measured on the 3D over the annotated frames, 0 where the 3D is missing)."""
 STANCE_CODES: dict[int, str] = {1: "orthodox", -1: "southpaw", 0: "square"}
 """``AthleteSeries.stance`` values: left foot forward, right foot forward, neither."""
 
@@ -43,6 +47,18 @@ def _check_vocab(name: str, arr: np.ndarray, vocab: tuple[str, ...], n: int) -> 
     bad = sorted(set(arr.tolist()) - set(vocab))
     if bad:
         raise ValueError(f"{name}: unknown values {bad}; expected one of {vocab}")
+
+
+def _no_source() -> np.ndarray:
+    return np.zeros(0, dtype="<U1")
+
+
+def _fill_source(obj: object, name: str, n: int) -> None:
+    """An empty source array on ``n`` rows means every row is the detector's (artifacts written
+    before the field existed, or built without it)."""
+    arr = getattr(obj, name)
+    if isinstance(arr, np.ndarray) and arr.shape == (0,) and n > 0:
+        object.__setattr__(obj, name, np.full(n, "detector", dtype="<U9"))
 
 
 def _check_intervals(name: str, start: np.ndarray, end: np.ndarray, n: int, peak: np.ndarray | None = None) -> None:
@@ -87,6 +103,9 @@ class BoutEvents:
         evade_punch: (evades,) row of the punch evaded.
         clinch_start_frame / clinch_end_frame: (clinches,) inclusive frames of each clinch
             (both athletes' torsos close with the arms wrapped around the other).
+        punch_source / evade_source / clinch_source: (punches,) / (evades,) / (clinches,)
+            ``EVENT_SOURCES``: detector, corrected (an annotator changed its type or outcome)
+            or annotator (added by hand); empty = all ``"detector"``.
     """
 
     fps: float
@@ -111,6 +130,9 @@ class BoutEvents:
     evade_punch: np.ndarray
     clinch_start_frame: np.ndarray
     clinch_end_frame: np.ndarray
+    punch_source: np.ndarray = field(default_factory=_no_source)
+    evade_source: np.ndarray = field(default_factory=_no_source)
+    clinch_source: np.ndarray = field(default_factory=_no_source)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.fps) and self.fps > 0):
@@ -141,6 +163,9 @@ class BoutEvents:
             raise ValueError(f"BoutEvents.evade_punch must index the {n} punches, got {self.evade_punch.tolist()}")
         c = self.clinch_start_frame.shape[0] if isinstance(self.clinch_start_frame, np.ndarray) else -1
         _check_intervals("BoutEvents.clinch", self.clinch_start_frame, self.clinch_end_frame, c)
+        for name, k in (("punch_source", n), ("evade_source", m), ("clinch_source", c)):
+            _fill_source(self, name, k)
+            _check_vocab(f"BoutEvents.{name}", getattr(self, name), EVENT_SOURCES, k)
 
     @property
     def n_punches(self) -> int:

@@ -1,8 +1,11 @@
 """analyze step: events.npz + series.npz from the latest 3D result (physics, else fit,
-else filtered; ``AnalyzeConfig.source`` can pin one)."""
+else filtered; ``AnalyzeConfig.source`` can pin one), with the annotators' event edits
+(``correct_event``, ``add_event``, ``delete_event``) applied; the edits that found no event are
+counted in the metric ``corrections_unmatched`` and listed in ``corrections_unmatched_edits``."""
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from pipeline.runner.registry import STAGE_ORDER
@@ -11,6 +14,8 @@ from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import PhysicsResult
 from pipeline.schema.sources import RESULT_ARTIFACTS
 from pipeline.stages.analyze import AnalyzeConfig, AnalyzeInputs, run
+
+log = logging.getLogger(__name__)
 
 SOURCE_ORDER: tuple[str, ...] = ("physics", "fit", "filtered")
 """Results analysed by ``source="auto"``, first present wins."""
@@ -28,8 +33,10 @@ def _execute(ctx: StageContext, cfg: AnalyzeConfig) -> dict[str, Any]:
     kp = ctx.load(stage, art, Keypoints3D)
     physics = ctx.load("physics", "result", PhysicsResult) if name == "physics" and ctx.has("physics", "result.npz") else None
     raw = ctx.load(*RESULT_ARTIFACTS["raw"], Keypoints3D) if ctx.has(*_file("raw")) else None
-    out = run(AnalyzeInputs(keypoints=kp, physics=physics, raw=raw), cfg)
+    out = run(AnalyzeInputs(keypoints=kp, physics=physics, raw=raw, corrections=tuple(ctx.annotations)), cfg)
     ctx.metrics.update(out.stats)
+    for line in out.stats.get("corrections_unmatched_edits", []):
+        log.warning("%s: analyze: edit not applied: %s", ctx.session_dir, line)
     ctx.metrics["source"] = name
     return {"events": out.events, "series": out.series}
 
@@ -45,5 +52,6 @@ SPEC = StageSpec(
     optional_deps=("fit", "physics"),
     config_cls=AnalyzeConfig,
     execute=_execute,
+    consumes_annotations=True,
     description="boxing analytics: punches (type, speed, outcome), slips and ducks, clinches, stance, work rate",
 )

@@ -182,6 +182,20 @@ class WorkRateConfig:
 
 
 @dataclass(frozen=True)
+class CorrectionConfig:
+    """How annotators' event edits (``correct_event``, ``add_event``, ``delete_event``) find
+    their event after a re-run."""
+
+    match_frames: int = 2
+    """An edit names an event by athlete, kind and the frame of its peak (strike); it matches
+    the nearest such event within this many frames (>= 0)."""
+
+    def __post_init__(self) -> None:
+        if self.match_frames < 0:
+            raise ValueError(f"CorrectionConfig.match_frames must be >= 0, got {self.match_frames}")
+
+
+@dataclass(frozen=True)
 class AnalyzeConfig:
     """Boxing analytics on the 3D keypoints: punches, slips and ducks, clinches, stance,
     guard, distance and work rate."""
@@ -194,3 +208,4 @@ class AnalyzeConfig:
     defence: DefenceConfig = field(default_factory=DefenceConfig)
     ring: RingConfig = field(default_factory=RingConfig)
     work_rate: WorkRateConfig = field(default_factory=WorkRateConfig)
+    corrections: CorrectionConfig = field(default_factory=CorrectionConfig)

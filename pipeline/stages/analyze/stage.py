@@ -15,11 +15,13 @@ import numpy as np
 
 from pipeline.evaluate.glove_contact import glove_gaps
 from pipeline.schema.analytics import AthleteSeries, BoutEvents
+from pipeline.schema.annotations import Annotation
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import PhysicsResult
 from pipeline.stages.analyze import classify, defence, outcome, ring
 from pipeline.stages.analyze.body import Body, bodies, facing_frames, opponent_of
 from pipeline.stages.analyze.config import AnalyzeConfig
+from pipeline.stages.analyze.corrections import Athlete, apply_corrections
 from pipeline.stages.analyze.punches import detect, hand_track, raw_peak_speed
 from pipeline.stages.analyze.workrate import punches_per_min
 
@@ -34,11 +36,13 @@ class AnalyzeInputs:
     """keypoints: the 3D result analysed; physics: the physics stage's result when the
     keypoints are its own (its contacts then decide outcomes where they exist); raw: the
     unfiltered triangulation, where the peak glove speeds are measured
-    (``PunchConfig.speed_source``)."""
+    (``PunchConfig.speed_source``); corrections: annotators' event edits, applied in order after
+    detection (``corrections.apply_corrections``; other edit kinds are ignored)."""
 
     keypoints: Keypoints3D
     physics: PhysicsResult | None = None
     raw: Keypoints3D | None = None
+    corrections: tuple[Annotation, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -163,17 +167,19 @@ def run(inp: AnalyzeInputs, cfg: AnalyzeConfig = AnalyzeConfig()) -> AnalyzeOutp
         ev = defence.evade(opp, by_id[p.person], p.hand, p.start, p.peak, cfg.defence)
         if ev is not None:
             evades.append((opp.person_id, ev, k))
+    events = _events(kp, punches, evades, defence.runs(clinch))
+    athletes = {b.person_id: Athlete(b, opps[i]) for i, b in enumerate(bs)}
+    events, fixes = apply_corrections(events, inp.corrections, athletes, frames, cfg)
     rate = np.zeros((n_f, n_p))
     for i, b in enumerate(bs):
-        strikes = frames[[p.peak for p in punches if p.person == b.person_id]]
+        strikes = events.punch_peak_frame[events.punch_person == b.person_id]
         rate[:, i] = punches_per_min(frames, kp.fps, strikes, cfg.work_rate) if n_f else 0.0
-    events = _events(kp, punches, evades, defence.runs(clinch))
     series = AthleteSeries(
         frame_indices=frames.astype(np.int64), fps=float(kp.fps), person_ids=kp.person_ids.astype(np.int64),
         valid=valid, distance_m=dist, distance_valid=dist_ok, stance=stance, stance_width_m=width,
         guard_height_m=guard, punches_per_min=rate,
     )  # fmt: skip
-    stats = {
+    stats: dict[str, Any] = {
         "punches": events.n_punches,
         "landed": int(np.sum(events.punch_outcome == "landed")),
         "blocked": int(np.sum(events.punch_outcome == "blocked")),
@@ -181,8 +187,12 @@ def run(inp: AnalyzeInputs, cfg: AnalyzeConfig = AnalyzeConfig()) -> AnalyzeOutp
         "slips": int(np.sum(events.evade_kind == "slip")),
         "ducks": int(np.sum(events.evade_kind == "duck")),
         "clinches": events.n_clinches,
-        "clinch_frames": int(clinch.sum()),
+        "clinch_frames": int(np.sum(events.clinch_end_frame - events.clinch_start_frame + 1)) if fixes.applied else int(clinch.sum()),
+        "corrections_applied": fixes.applied,
+        "corrections_unmatched": len(fixes.unmatched),
     }
+    if fixes.unmatched:
+        stats["corrections_unmatched_edits"] = list(fixes.unmatched)
     return AnalyzeOutput(events, series, stats)
 
 
