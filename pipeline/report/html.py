@@ -191,7 +191,7 @@ def render_report(data: ReportData, options: ReportOptions | None = None) -> str
          + f'<p class="note">Punches per {options.speed_bin_mps:g} m/s of peak glove speed, stacked by outcome; dashed: the mean.</p>'),
         ("work-rate", "Work rate", _figures([("punches over time", charts.work_rate_timeline(data, options))])
          + f'<p class="note">Punches thrown per {options.bin_s:g} s, by the time of the strike; a last, shorter bin has '
-           "narrower bars. Grey bands above the bars: clinches.</p>"),
+           "narrower bars. Grey bands behind the bars: clinches.</p>"),
     ]  # fmt: skip
     body = "".join(
         f'<section id="{sid}" class="{"first" if k == 0 else ""}"><h2>{esc(title)}</h2>{html}</section>'

@@ -5,6 +5,7 @@ it is self-contained and printable; and ``cornerman report`` on a session the ru
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -13,6 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.report import ReportData, ReportOptions, load_report_data, render_report, slice_bout
+from pipeline.report.charts import OUTCOME_COLORS
 from pipeline.report.html import SUMMARY_ROWS
 from pipeline.schema.analytics import OUTCOMES, PUNCH_TYPES, BoutEvents
 from pipeline.stages.analyze import AnalyzeOutput, summarize
@@ -109,6 +111,22 @@ def test_periods_add_up_to_the_bout(bout: tuple[Path, AnalyzeOutput, ReportData]
         slice_bout(ev, out.series, 20.0, 24.0)
 
 
+def _marks(chart: Element) -> list[Element]:
+    """The chart's tagged data marks: matplotlib artists written as ``<g class="mark" data-*>``."""
+    return chart.find_all("g", **{"class": "mark"})
+
+
+def _fill(mark: Element) -> str:
+    """The fill colour matplotlib wrote on the mark's path."""
+    fills = {
+        m
+        for p in mark.find_all("path")
+        for m in re.findall(r"fill: (#[0-9a-f]{6})", p.attrs.get("style", ""))
+    }
+    assert len(fills) == 1, (mark.attrs, fills)
+    return fills.pop()
+
+
 def test_charts_have_one_mark_per_event_and_labelled_axes(
     bout: tuple[Path, AnalyzeOutput, ReportData],
 ) -> None:
@@ -122,42 +140,75 @@ def test_charts_have_one_mark_per_event_and_labelled_axes(
     assert len(_charts(root, "work-rate")) == 1
     for pid in (0, 1):
         mine = ev.punch_person == pid
-        dots = _charts(root, "punch-map")[pid].find_all("circle", **{"class": "mark"})
+        dots = _marks(_charts(root, "punch-map")[pid])
         assert len(dots) == int(np.sum(mine & (ev.punch_target != "none")))
         for o in OUTCOMES:
             assert sum(d.attrs["data-outcome"] == o for d in dots) == int(
                 np.sum(mine & (ev.punch_target != "none") & (ev.punch_outcome == o))
             )
-        bars = _charts(root, "speed-histogram")[pid].find_all("rect", **{"class": "mark"})
+        assert all(_fill(d) == OUTCOME_COLORS[d.attrs["data-outcome"]] for d in dots)
+        for t in ("head", "body", "guard"):
+            assert sum(d.attrs["data-target"] == t for d in dots) == int(
+                np.sum(mine & (ev.punch_target == t))
+            )
+        bars = _marks(_charts(root, "speed-histogram")[pid])
         for o in OUTCOMES:
             assert sum(int(b.attrs["data-count"]) for b in bars if b.attrs["data-outcome"] == o) == int(
                 np.sum(mine & (ev.punch_outcome == o))
             )
-        rate = [
-            b
-            for b in _charts(root, "work-rate")[0].find_all("rect", **{"class": "mark"})
-            if b.attrs["data-athlete"] == str(pid)
-        ]
+        assert all(_fill(b) == OUTCOME_COLORS[b.attrs["data-outcome"]] for b in bars)
+        rate = [b for b in _marks(_charts(root, "work-rate")[0]) if b.attrs["data-athlete"] == str(pid)]
         assert len(rate) == math.ceil(data.duration_s / opts.bin_s) and sum(
             int(b.attrs["data-count"]) for b in rate
         ) == int(mine.sum())
-        cells = _charts(root, "ring-heatmap")[pid].find_all("rect", **{"class": "mark"})
+        assert all(_fill(b) == data.color_of(pid) for b in rate)
+        cells = _marks(_charts(root, "ring-heatmap")[pid])
         assert data.positions_valid is not None
         seconds = sum(float(c.attrs["data-seconds"]) for c in cells)
         assert seconds == pytest.approx(data.positions_valid[:, pid].sum() / data.series.fps, rel=1e-6)
         assert len(cells) > 4  # the athlete moved around
+    # Clinches (the fixture has none): one grey band each, over their seconds (end frame inclusive).
+    f0 = int(data.series.frame_indices[0])
+    clinched = replace(
+        ev, clinch_start_frame=np.array([f0 + 100, f0 + 400]), clinch_end_frame=np.array([f0 + 149, f0 + 424])
+    )
+    rate_chart = _charts(parse(render_report(replace(data, events=clinched), opts)), "work-rate")[0]
+    bands = rate_chart.find_all("g", **{"class": "clinch"})
+    assert [(float(b.attrs["data-t0"]), float(b.attrs["data-t1"])) for b in bands] == [(2.0, 3.0), (8.0, 8.5)]
+    assert not _charts(root, "work-rate")[0].find_all("g", **{"class": "clinch"})
     for kind, units in (("ring-heatmap", "(m)"), ("speed-histogram", "(m/s)"), ("work-rate", "(s)")):
         for chart in _charts(root, kind):
-            labels = [t.text for t in chart.find_all("text") if t.attrs.get("class") in ("xlabel", "ylabel")]
+            labels = [
+                g.text.strip() for c in ("xlabel", "ylabel") for g in chart.find_all("g", **{"class": c})
+            ]
             assert len(labels) == 2 and units in labels[0], (kind, labels)
-    assert "ring unknown" in html and not root.find_all("polygon", **{"class": "ring"})
+            # matplotlib kept the labels as text (svg.fonttype none), not glyph outlines
+            assert all(any(t.text.strip() == lab for t in chart.find_all("text")) for lab in labels), labels
+    assert "ring unknown" in html and len(root.find_all("g", **{"class": "ring bbox"})) == 2
+    assert not root.find_all("g", **{"class": "ring"})
 
 
 def test_self_contained_and_printable(bout: tuple[Path, AnalyzeOutput, ReportData]) -> None:
     html = render_report(bout[2])
     assert html.startswith("<!doctype html>")
-    for outside in ("<script", "<link", " src=", "url(", "@import", "http://", "https://"):
+    for outside in (
+        "<script",
+        "<link",
+        " src=",
+        "@import",
+        "http://",
+        "https://",
+        "xlink:",
+        "<?xml",
+        "<!DOCTYPE",
+    ):
         assert outside not in html, outside
+    assert not re.findall(r"url\((?!#)", html)  # only references to elements of the page (clip paths)
+    ids = re.findall(r'\bid="([^"]+)"', html)
+    assert len(ids) > 100 and len(ids) == len(set(ids))  # several matplotlib SVGs on one page share no id
+    refs = set(re.findall(r'(?:url\(#|href="#)([^")]+)', html))
+    assert refs and refs <= set(ids), refs - set(ids)  # every clip path and marker it uses is on the page
+    assert render_report(bout[2]) == html  # deterministic: fixed hash salt, no date in the SVG
     css = parse(html).find_all("style")[0].text
     assert "@media print" in css and "size:A4" in css and "break-before:page" in css
     sections = parse(html).find_all("section")
@@ -177,11 +228,20 @@ def test_given_rounds_and_ring_and_missing_parts(bout: tuple[Path, AnalyzeOutput
     html = render_report(replace(data, ring_xy_m=ring, rounds_s=((0.0, 5.0), (6.0, 12.0))))
     root = parse(html)
     assert "Rounds from the session" in html and "round 2" in html and "ring unknown" not in html
-    assert len(root.find_all("polygon", **{"class": "ring"})) == 2
+    rings = root.find_all("g", **{"class": "ring"})
+    assert len(rings) == 2 and not root.find_all("g", **{"class": "ring bbox"})
+    # the ring's four corners, drawn closed, in the same place in both heatmaps
+    assert all(len(re.findall(r"[ML] ", r.find_all("path")[0].attrs["d"])) == 5 for r in rings)
     empty = BoutEvents.empty(data.series.fps, data.series.person_ids)
     html = render_report(replace(data, events=empty, positions_xy_m=None, positions_valid=None))
     assert html.count("threw no punch") == 2 * 2 and "no 3D positions" in html  # types + histograms
-    assert not parse(html).find_all("circle", **{"class": "mark"})
+    root = parse(html)
+    for kind in ("punch-map", "speed-histogram", "ring-heatmap"):
+        assert len(_charts(root, kind)) == 2 and not any(_marks(c) for c in _charts(root, kind)), kind
+    rate = _marks(_charts(root, "work-rate")[0])
+    assert len(rate) == 2 * math.ceil(data.duration_s / 10.0) and all(
+        r.attrs["data-count"] == "0" for r in rate
+    )
     with pytest.raises(ValueError, match="period_s"):
         ReportOptions(period_s=0.0)
     with pytest.raises(ValueError, match="rounds_s"):
@@ -209,7 +269,7 @@ def test_cli_report_on_a_session_the_runner_analysed(tmp_path: Path) -> None:
     assert len(svgs(html)) == 7 and "tiny — bout report" in html
     data = load_report_data(s)
     assert data.source == "filtered" and data.positions_valid is not None and data.positions_valid.any()
-    rate = _charts(root, "work-rate")[0].find_all("rect", **{"class": "mark"})
+    rate = _marks(_charts(root, "work-rate")[0])
     assert len(rate) == 2 * math.ceil(data.duration_s / 0.2 - 1e-9)
     assert sum(int(b.attrs["data-count"]) for b in rate) == data.events.n_punches
 
@@ -225,7 +285,11 @@ def test_rounds_and_ring_come_from_session_json(tmp_path: Path) -> None:
     d.update(rounds_s=[[0, 4], [5, 9.5]], ring_xy_m=[[-3, -3], [3, -3], [3, 3], [-3, 3]])
     (folder / "session.json").write_text(json.dumps(d))
     data = load_report_data(folder)
-    assert data.rounds_s == ((0.0, 4.0), (5.0, 9.5)) and data.ring_xy_m is not None and data.ring_xy_m.shape == (4, 2)
+    assert (
+        data.rounds_s == ((0.0, 4.0), (5.0, 9.5))
+        and data.ring_xy_m is not None
+        and data.ring_xy_m.shape == (4, 2)
+    )
     html = render_report(data)
     assert "Rounds from the session" in html and "round 2" in html and "ring unknown" not in html
     for bad, why in (({"rounds_s": [[4, 2]]}, "rounds_s"), ({"rounds_s": [[0, 5], [3, 8]]}, "overlapping"),
