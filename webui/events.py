@@ -21,6 +21,8 @@ TYPE_ABBREV: dict[str, str] = {
 }  # fmt: skip
 OUTCOME_MARK: dict[str, str] = {"landed": "✓", "blocked": "▪", "missed": "·"}
 """Outcome symbol on a mark and in the list (marks carry text only, no colour)."""
+HUMAN_MARK = "✎"
+"""Suffix of a punch an annotator corrected or added (``BoutEvents.punch_source``)."""
 
 
 @dataclass(frozen=True)
@@ -38,6 +40,11 @@ class EventsView:
     def name(self, pid: int) -> str:
         return self.names.get(int(pid), f"P{int(pid)}")
 
+    def human(self, i: int) -> str:
+        """``HUMAN_MARK`` when punch ``i`` was corrected or added by an annotator, else ""."""
+        ev = self.events
+        return HUMAN_MARK if ev is not None and ev.punch_source[i] != "detector" else ""
+
     def label(self, i: int) -> str:
         """One line describing punch ``i``: time, athlete, type, outcome, speed."""
         ev = self.events
@@ -46,6 +53,7 @@ class EventsView:
         return (
             f"#{i + 1} {f / ev.fps:6.2f}s {self.name(ev.punch_person[i])} {str(ev.punch_type[i]).replace('_', ' ')} "
             f"{OUTCOME_MARK[str(ev.punch_outcome[i])]} {ev.punch_outcome[i]} {ev.punch_peak_speed_mps[i]:.1f} m/s"
+            f"{' ' + self.human(i) if self.human(i) else ''}"
         )
 
     def matching(self, athlete: str = ALL, punch_type: str = ALL, outcome: str = ALL) -> np.ndarray:
@@ -80,7 +88,7 @@ class EventsView:
 
     def marks(self, pid: int, rows: np.ndarray | None = None) -> tuple[tuple[int, str], ...]:
         """(strike frame, label) of athlete ``pid``'s punches (of ``rows`` when given), e.g.
-        ``"J✓"`` a jab that landed; at most ``MAX_MARKS`` (evenly thinned)."""
+        ``"J✓"`` a jab that landed (``"J✓✎"`` as an annotator set it); at most ``MAX_MARKS`` (evenly thinned)."""
         ev = self.events
         if ev is None:
             return ()
@@ -90,8 +98,11 @@ class EventsView:
         if sel.size > MAX_MARKS:
             sel = sel[np.linspace(0, sel.size - 1, MAX_MARKS).astype(int)]
         return tuple(
-            (int(ev.punch_peak_frame[i]), TYPE_ABBREV[str(ev.punch_type[i])] + OUTCOME_MARK[str(ev.punch_outcome[i])])
-            for i in sel
+            (
+                int(ev.punch_peak_frame[i]),
+                TYPE_ABBREV[str(ev.punch_type[i])] + OUTCOME_MARK[str(ev.punch_outcome[i])] + self.human(i),
+            )
+            for i in sel.tolist()
         )
 
     def listing(self, rows: np.ndarray) -> str:
@@ -102,13 +113,15 @@ class EventsView:
         if rows.size == 0:
             return "No punch matches the filters."
         lines = ["| # | time s | athlete | type | outcome | target | m/s |", "|---:|---:|---|---|---|---|---:|"]
-        for i in rows[:MAX_LISTED]:
+        for i in rows[:MAX_LISTED].tolist():
             lines.append(
                 f"| {i + 1} | {ev.punch_peak_frame[i] / ev.fps:.2f} | {self.name(ev.punch_person[i])} | "
-                f"{str(ev.punch_type[i]).replace('_', ' ')} | {OUTCOME_MARK[str(ev.punch_outcome[i])]} {ev.punch_outcome[i]} | "
+                f"{str(ev.punch_type[i]).replace('_', ' ')}{' ' + self.human(i) if self.human(i) else ''} | {OUTCOME_MARK[str(ev.punch_outcome[i])]} {ev.punch_outcome[i]} | "
                 f"{ev.punch_target[i]} | {ev.punch_peak_speed_mps[i]:.1f} |"
             )
         more = f"\n\n…and {rows.size - MAX_LISTED} more." if rows.size > MAX_LISTED else ""
+        if any(self.human(i) for i in rows[:MAX_LISTED].tolist()):
+            more += f"\n\n{HUMAN_MARK} set or added by an annotator."
         return "\n".join(lines) + more
 
     def summary_cards(self) -> str:
