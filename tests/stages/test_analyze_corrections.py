@@ -158,11 +158,13 @@ def test_edits_whose_event_is_gone_are_reported_not_raised() -> None:
         DeleteEvent(person=1, event="slip", frame=60),
         AddEvent(person=1, event="slip", frame_start=120, frame_end=140),
         AddEvent(person=7, event="punch", frame_start=10, frame_end=20, punch_type="jab", outcome="missed"),
+        CorrectEvent(person=0, event="punch", frame=int(before.punch_peak_frame[0]), outcome="knockout"),
     )
-    assert out.stats["corrections_unmatched"] == 5 and out.stats["corrections_applied"] == 0
+    assert out.stats["corrections_unmatched"] == 6 and out.stats["corrections_applied"] == 0
     lines = out.stats["corrections_unmatched_edits"]
     assert "no punch of person 0 within ±2 frames" in lines[0] and "no slip of person 1" in lines[2]
     assert "no punch of the opponent" in lines[3] and "person 7" in lines[4]
+    assert "outcome 'knockout' is not one of" in lines[5]  # an annotations.json written by hand
     for f in (
         "punch_type",
         "punch_outcome",

@@ -18,6 +18,7 @@ import numpy as np
 
 from pipeline.evaluate.glove_contact import glove_gaps
 from pipeline.schema.analytics import BoutEvents
+from pipeline.schema.annotation_checks import AnnotationBounds, check_annotation
 from pipeline.schema.annotation_text import describe_annotation
 from pipeline.schema.annotations import AddEvent, Annotation, CorrectEvent, DeleteEvent
 from pipeline.stages.analyze import outcome
@@ -236,6 +237,44 @@ def _add_clinch(clinches: list[dict[str, Any]], first: int, last: int) -> None:
     clinches.append({"start": first, "end": last, "source": "annotator" if not touching else "corrected"})
 
 
+def _apply(a: Annotation, punches: list[dict[str, Any]], evades: list[dict[str, Any]], clinches: list[dict[str, Any]],
+           athletes: dict[int, Athlete], frames: np.ndarray, cfg: AnalyzeConfig) -> str:  # fmt: skip
+    """Apply one edit to the rows in place; "" when done, else why not."""
+    tol = cfg.corrections.match_frames
+    try:  # the server checked it; an annotations.json written by hand may not have been
+        check_annotation(a, AnnotationBounds())
+    except ValueError as err:
+        return str(err)
+    if isinstance(a, CorrectEvent | DeleteEvent):
+        row = _nearest(_candidates(a, punches, evades, clinches), a.frame, tol, clinch=a.event == "clinch")
+        if row is None:
+            who = "" if a.event == "clinch" else f" of person {a.person}"
+            return f"no {a.event}{who} within ±{tol} frames of frame {a.frame}"
+        if isinstance(a, DeleteEvent):
+            for rows in (punches, evades, clinches):
+                if any(r is row for r in rows):
+                    rows.remove(row)
+            evades[:] = [e for e in evades if e["punch"] is not row]
+        else:  # a punch (check_annotation)
+            row["type"] = a.punch_type or row["type"]
+            row["outcome"] = a.outcome or row["outcome"]
+            row["source"] = "annotator" if row["source"] == "annotator" else "corrected"
+        return ""
+    if not isinstance(a, AddEvent):
+        return f"{a.kind} is not an event edit"
+    me = athletes.get(a.person)
+    if me is None:
+        return f"person {a.person} is not an analysed athlete {sorted(athletes)}"
+    if a.event == "clinch":
+        _add_clinch(clinches, a.frame_start, a.frame_end)
+        return ""
+    new = _punch_of(a, me, frames, cfg) if a.event == "punch" else _evade_of(a, me, frames, punches, tol)
+    if isinstance(new, str):
+        return new
+    (punches if a.event == "punch" else evades).append(new)
+    return ""
+
+
 def apply_corrections(events: BoutEvents, edits: Sequence[Annotation], athletes: dict[int, Athlete],
                       frames: np.ndarray, cfg: AnalyzeConfig = AnalyzeConfig()) -> tuple[BoutEvents, CorrectionReport]:  # fmt: skip
     """``events`` with the event ``edits`` applied in order (other kinds ignored).
@@ -243,59 +282,17 @@ def apply_corrections(events: BoutEvents, edits: Sequence[Annotation], athletes:
     ``athletes``: person id -> 3D body on the analysed ``frames`` (video frame indices, strictly
     increasing), used to measure added events. Corrected punches get source ``"corrected"``, added
     events ``"annotator"``; deleting a punch deletes the evasions of it. Never raises on an edit
-    whose event is missing: it is listed in the report's ``unmatched`` with the reason.
+    that is invalid or whose event is missing: it is listed in the report's ``unmatched`` with
+    the reason.
     """
     mine = [a for a in edits if isinstance(a, EVENT_EDITS)]
     if not mine:
         return events, CorrectionReport()
-    tol = cfg.corrections.match_frames
     punches, evades, clinches = _rows(events)
-    applied, unmatched = 0, []
+    unmatched = []
     for a in mine:
-        why = ""
-        if isinstance(a, CorrectEvent | DeleteEvent):
-            row = _nearest(
-                _candidates(a, punches, evades, clinches), a.frame, tol, clinch=a.event == "clinch"
-            )
-            who = "" if a.event == "clinch" else f" of person {a.person}"
-            if row is None:
-                why = f"no {a.event}{who} within ±{tol} frames of frame {a.frame}"
-            elif isinstance(a, DeleteEvent):
-                for rows in (punches, evades, clinches):
-                    if any(r is row for r in rows):
-                        rows.remove(row)
-                evades[:] = [e for e in evades if e["punch"] is not row]
-            elif a.event != "punch":
-                why = f"only a punch's type or outcome can be corrected, not a {a.event}'s"
-            else:
-                row["type"] = a.punch_type or row["type"]
-                row["outcome"] = a.outcome or row["outcome"]
-                row["source"] = "annotator" if row["source"] == "annotator" else "corrected"
-        elif isinstance(a, AddEvent):
-            me = athletes.get(a.person)
-            if me is None:
-                why = f"person {a.person} is not an analysed athlete {sorted(athletes)}"
-            elif not a.frame_start <= (a.frame_start if a.frame is None else a.frame) <= a.frame_end:
-                why = f"frames must satisfy frame_start <= frame <= frame_end, got {a.frame_start}, {a.frame}, {a.frame_end}"
-            elif a.event == "clinch":
-                _add_clinch(clinches, a.frame_start, a.frame_end)
-            elif a.event == "punch":
-                if a.punch_type is None or a.outcome is None:
-                    why = "an added punch needs punch_type and outcome"
-                else:
-                    p = _punch_of(a, me, frames, cfg)
-                    why = p if isinstance(p, str) else ""
-                    if isinstance(p, dict):
-                        punches.append(p)
-            elif a.event not in ("slip", "duck"):
-                why = f"unknown event {a.event!r}"
-            else:
-                e = _evade_of(a, me, frames, punches, tol)
-                why = e if isinstance(e, str) else ""
-                if isinstance(e, dict):
-                    evades.append(e)
+        why = _apply(a, punches, evades, clinches, athletes, frames, cfg)
         if why:
             unmatched.append(f"{describe_annotation(a)}: {why}")
-        else:
-            applied += 1
-    return _events(events, punches, evades, clinches), CorrectionReport(applied, tuple(unmatched))
+    report = CorrectionReport(len(mine) - len(unmatched), tuple(unmatched))
+    return _events(events, punches, evades, clinches), report
