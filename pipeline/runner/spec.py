@@ -118,6 +118,15 @@ class StageContext:
             return None
         return self.previous
 
+    def reusable_with(self, enabled: bool, output: str, what: str) -> PreviousRun | None:
+        """``reusable_previous``, and also None when that run did not store ``output`` (a file
+        name); the metric ``incremental`` then says it stored no ``what``."""
+        prev = self.reusable_previous(enabled)
+        if prev is not None and output not in prev.manifest.outputs:
+            self.metrics["incremental"] = f"full run: the previous run stored no {what}"
+            return None
+        return prev
+
     def load_previous(self, name: str, cls: type) -> Any:
         """``<name>.npz`` of this stage's previous run as schema type ``cls``."""
         return self.store.load(self.stage, name, cls)

@@ -205,6 +205,9 @@ class _FakeCtx:
     def reusable_previous(self, enabled: bool) -> None:
         self.metrics["incremental"] = "full run: no previous run"
 
+    def reusable_with(self, enabled: bool, output: str, what: str) -> None:
+        self.reusable_previous(enabled)
+
 
 def test_step_execute_outputs_and_metrics() -> None:
     from pipeline.runner.steps.physics import SPEC

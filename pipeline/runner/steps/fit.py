@@ -24,11 +24,7 @@ CHECKPOINTS = "checkpoints"
 
 
 def _previous(ctx: StageContext, cfg: FitConfig) -> FitPrevious | None:
-    prev = ctx.reusable_previous(cfg.incremental)
-    if prev is None:
-        return None
-    if not ctx.has("fit", f"{CHECKPOINTS}.npz"):
-        ctx.metrics["incremental"] = "full run: the previous run stored no checkpoints"
+    if ctx.reusable_with(cfg.incremental, f"{CHECKPOINTS}.npz", "checkpoints") is None:
         return None
     return FitPrevious(
         bodyfit=ctx.load_previous("bodyfit", BodyFit),

@@ -20,11 +20,7 @@ CHECKPOINTS = "checkpoints"
 
 
 def _previous(ctx: StageContext, cfg: PhysicsConfig) -> PhysicsPrevious | None:
-    prev = ctx.reusable_previous(cfg.incremental)
-    if prev is None:
-        return None
-    if not ctx.has("physics", f"{CHECKPOINTS}.npz"):
-        ctx.metrics["incremental"] = "full run: the previous run stored no checkpoints"
+    if ctx.reusable_with(cfg.incremental, f"{CHECKPOINTS}.npz", "checkpoints") is None:
         return None
     return PhysicsPrevious(
         result=ctx.load_previous("result", PhysicsResult),

@@ -17,15 +17,11 @@ def _execute(ctx: StageContext, cfg: TriangulateConfig) -> dict[str, Any]:
     tracks = ctx.load("track", "tracks", Tracks2D)
     assoc = ctx.load("associate", "association", Association)
     held = None
-    prev = ctx.reusable_previous(cfg.incremental)
-    if prev is not None:
-        if "bone_lengths.npz" in prev.manifest.outputs:
-            held = ctx.load_previous("bone_lengths", BoneLengths)
-            ctx.metrics["incremental"] = (
-                "bone lengths held from the previous run where they moved <= hold_bone_rel or hold_bone_m"
-            )
-        else:
-            ctx.metrics["incremental"] = "full run: the previous run stored no bone lengths"
+    if ctx.reusable_with(cfg.incremental, "bone_lengths.npz", "bone lengths") is not None:
+        held = ctx.load_previous("bone_lengths", BoneLengths)
+        ctx.metrics["incremental"] = (
+            "bone lengths held from the previous run where they moved <= hold_bone_rel or hold_bone_m"
+        )
     raw, filtered, bones = run_holding(tracks, assoc, ctx.rig, cfg, held)
     if held is not None:
         same = (
