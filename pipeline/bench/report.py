@@ -101,6 +101,8 @@ SHELF = (
     col("lower arms PCP %", "pcp_lower_arms", "{:.1f}"),
     col("stage s", "stage_s", "{:.1f}"),
     col("total s", "pipeline_s", "{:.1f}"),
+    col("residual / floor Fz bw", "residual_mean_frac_bw", "{:.2f}", "grf_z_mean_frac_bw", "{:.2f}"),
+    col("τ > human %", "torque_over_pct_any", "{:.0f}"),
     col("target", "target", "{}", text=True),
     col("met", "target_met", "{}"),
 )
@@ -122,6 +124,8 @@ FOOTAGE = (
         "residual_force_max_frac_bw",
         "{:.2f}",
     ),
+    col("floor Fz bw", "grf_z_mean_frac_bw", "{:.2f}"),
+    col("τ > human %", "torque_over_pct_any", "{:.0f}"),
 )
 """``pipeline.bench.footage`` output rows (raw, filtered, fit, physics)."""
 
