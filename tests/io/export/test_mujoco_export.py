@@ -83,3 +83,10 @@ def test_mujoco_export_without_physics_is_a_lookup_error(session: Path, tmp_path
     )
     with pytest.raises(LookupError, match="scene.xml"):
         export_files(ExportSelection(s), "mujoco")
+
+
+def test_the_readme_gives_the_replay_script_as_exported() -> None:
+    from pipeline.io.export.mjcf import REPLAY_PY
+
+    readme = (Path(__file__).resolve().parents[3] / "README.md").read_text()
+    assert REPLAY_PY.strip() in readme and len(REPLAY_PY.strip().splitlines()) <= 20
