@@ -45,12 +45,11 @@ def test_demo_on_a_busy_port_fails_before_any_compute(busy_port: int, tmp_path: 
 
     monkeypatch.setattr(pipeline.synthetic, "make_demo_session", no_compute)
     monkeypatch.setenv("CORNERMAN_HOME", str(tmp_path / "home"))
-    t0 = time.perf_counter()
     r = runner.invoke(app, ["demo", "--port", str(busy_port), "--session-dir", str(tmp_path / "demo")])
     assert r.exit_code == 2, r.output
     assert f"cannot serve on 127.0.0.1:{busy_port}" in r.output and "--port" in r.output
     assert "token" not in r.output and "http://" not in r.output  # no links for a server that never ran
-    assert not (tmp_path / "demo").exists() and time.perf_counter() - t0 < 5.0
+    assert not (tmp_path / "demo").exists()
 
 
 def test_serve_on_a_busy_port_fails_before_touching_the_home(busy_port: int, tmp_path: Path) -> None:
