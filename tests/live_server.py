@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import time
 from pathlib import Path
@@ -22,3 +24,15 @@ def wait_until_healthy(base: str, proc: subprocess.Popen, log_path: Path, timeou
         if proc.poll() is not None or time.monotonic() > t_end:
             raise AssertionError(f"the server at {base} did not start:\n{log_path.read_text()[-3000:]}")
         time.sleep(0.2)
+
+
+def stop_server(proc: subprocess.Popen) -> None:
+    """Stop a server started with ``start_new_session=True``: SIGINT (uvicorn shuts down cleanly,
+    ``cornerman serve`` stops its workers, viewers exit once their parent is gone), then kill
+    the process group if it has not exited within 30 s."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(30)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(10)

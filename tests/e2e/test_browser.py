@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import os
 import re
-import signal
 import socket
 import subprocess
 import sys
@@ -24,7 +23,7 @@ import httpx
 import numpy as np
 import pytest
 
-from tests.live_server import wait_until_healthy
+from tests.live_server import stop_server, wait_until_healthy
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.timeout(600)]  # slow: ~50 s of the fast tier
 
@@ -103,15 +102,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
             assert jobs[-1]["status"] == "done", jobs[-1]
         yield served
     finally:
-        # SIGINT: uvicorn shuts down and re-raises it as KeyboardInterrupt, so serve()'s
-        # cleanup stops the workers (after SIGTERM it would die without running it). The
-        # viewers exit by themselves when the server process is gone (--parent-pid).
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(10)
+        stop_server(proc)  # SIGINT: serve stops its workers, viewers exit with their parent
 
 
 def _colour_pixels(png: Path, rgb: tuple[int, int, int], x_max_frac: float, tol: int = 30) -> int:

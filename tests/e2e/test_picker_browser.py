@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import os
 import re
-import signal
 import subprocess
 import sys
 import time
@@ -19,7 +18,7 @@ import httpx
 import pytest
 
 from tests.e2e.test_browser import CHROMIUM, CHROMIUM_ARGS, _free_port
-from tests.live_server import wait_until_healthy
+from tests.live_server import stop_server, wait_until_healthy
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.timeout(400)]
 STAGES = ("detect2d", "track", "associate", "triangulate")
@@ -52,12 +51,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
         wait_until_healthy(base, proc, log_path)
         yield {"base": base, "token": token, "bout": bout, "out_dir": out_dir}
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(10)
+        stop_server(proc)  # SIGINT: serve stops its workers, viewers exit with their parent
 
 
 def test_create_from_folder_run_and_open_the_job(server: dict) -> None:

@@ -14,7 +14,6 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -27,7 +26,7 @@ import httpx
 import pytest
 
 from server.viewer_bench import viewer_pids
-from tests.live_server import wait_until_healthy
+from tests.live_server import stop_server, wait_until_healthy
 from tests.webui.fixtures import build_session
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.timeout(600)]
@@ -87,12 +86,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
         shutil.copytree(src / "artifacts", folder / "artifacts", dirs_exist_ok=True)  # results as if the stages ran
         yield Served(base, tokens, int(r.json()["id"]), folder)
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(10)
+        stop_server(proc)  # SIGINT: serve stops its workers, viewers exit with their parent
 
 
 def _open(browser: Any, served: Served, user: str) -> tuple[Any, Any]:

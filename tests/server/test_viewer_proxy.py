@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import importlib.metadata
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -32,7 +31,7 @@ from server.api.deps import SESSION_COOKIE
 from server.cli import create_user
 from server.loadtest import free_port
 from server.viewer_bench import camera_message
-from tests.live_server import wait_until_healthy
+from tests.live_server import stop_server, wait_until_healthy
 from tests.webui.fixtures import build_session
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300)]
@@ -102,12 +101,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
         (srv.session_id, srv.session_dir), (srv.other_session_id, srv.other_dir) = made
         yield srv
     finally:
-        proc.send_signal(signal.SIGINT)  # the viewers exit once their parent (uvicorn) is gone
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(10)
+        stop_server(proc)  # SIGINT: serve stops its workers, viewers exit with their parent
 
 
 def _viewer_procs(session_dir: Path) -> list[dict]:
