@@ -13,6 +13,7 @@ import io
 import json
 import types
 import typing
+import zipfile
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -119,16 +120,21 @@ def save_npz(path: str | Path, obj: Any) -> None:
     Path(path).write_bytes(buf.getvalue())
 
 
+_UNREADABLE = (OSError, EOFError, zipfile.BadZipFile, ValueError)
+"""What numpy raises for a missing, truncated, corrupt or pickled npz."""
+
+
 def load_npz_scalar(path: str | Path, name: str) -> Any:
     """One scalar field (``int``, ``float``, ``str``, ``bool``) of an npz written by
     :func:`save_npz`, without reading its arrays; ``ValueError`` naming the file."""
     try:
-        with np.load(path, allow_pickle=False) as z:
-            if _SCALAR_PREFIX + name not in z.files:
-                raise ValueError(f"{path}: no scalar field {name!r}")
-            return z[_SCALAR_PREFIX + name].item()
-    except OSError as e:
+        z = np.load(path, allow_pickle=False)
+    except _UNREADABLE as e:
         raise ValueError(f"{path}: cannot read npz: {e}") from e
+    with z:
+        if _SCALAR_PREFIX + name not in z.files:
+            raise ValueError(f"{path}: no scalar field {name!r}")
+        return z[_SCALAR_PREFIX + name].item()
 
 
 def load_npz(path: str | Path, cls: type[T]) -> T:
@@ -136,7 +142,7 @@ def load_npz(path: str | Path, cls: type[T]) -> T:
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as e:
+    except _UNREADABLE as e:
         raise ValueError(f"{path}: cannot read npz: {e}") from e
     try:
         return from_arrays(cls, arrays)

@@ -37,6 +37,19 @@ def test_rig_round_trip_and_projection_matrix(tmp_path: Path) -> None:
     assert np.abs(np.einsum("vij,vj->vi", rig.P, C)).max() < 1e-9
 
 
+def test_a_truncated_or_corrupt_npz_is_a_clear_error_naming_the_file(tmp_path: Path) -> None:
+    from pipeline.schema.base import load_npz_scalar
+
+    save_npz(tmp_path / "rig.npz", make_rig(2))
+    data = (tmp_path / "rig.npz").read_bytes()
+    for name, content in (("cut.npz", data[: len(data) // 3]), ("junk.npz", b"not an npz"), ("empty.npz", b"")):
+        (tmp_path / name).write_bytes(content)
+        with pytest.raises(ValueError, match=f"{name}: cannot read npz"):
+            load_npz(tmp_path / name, CameraRig)
+        with pytest.raises(ValueError, match=f"{name}: cannot read npz"):
+            load_npz_scalar(tmp_path / name, "fps")
+
+
 @pytest.mark.parametrize(
     "change, message",
     [
