@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.bench.effort import EFFORT_COLUMNS, session_effort_columns
-from pipeline.evaluate.shelf import ShelfScore, load_ground_truth, score_shelf
+from pipeline.evaluate.shelf import ShelfScore, coco_to_shelf, load_ground_truth, score_shelf
 from pipeline.schema.sources import RESULT_ARTIFACTS
 
 log = logging.getLogger(__name__)
@@ -166,6 +166,35 @@ def _score_row(name: str, stage: str, s: ShelfScore) -> dict[str, Any]:
     return row
 
 
+def _attribution_columns(store: Any, pred: Any, gt: Any, score: ShelfScore) -> dict[str, Any]:
+    """Why limb parts are wrong (``pipeline.evaluate.shelf_attribution``) and the hips'
+    height offset; empty when the session lacks the tracks, association or rig."""
+    from pipeline.evaluate.shelf_attribution import (
+        associated_limb_keypoints,
+        attribute_wrong_parts,
+        hip_height_offset_mm,
+    )
+    from pipeline.schema.association import Association
+    from pipeline.schema.camera import CameraRig
+    from pipeline.schema.detections import Tracks2D
+
+    out: dict[str, Any] = {"hip_dz_mm": hip_height_offset_mm(pred, gt, score)}
+    if not all(store.has(s, f) for s, f in (("track", "tracks.npz"), ("associate", "association.npz"), ("calibrate", "rig.npz"))):
+        return out
+    obs = associated_limb_keypoints(
+        store.load("track", "tracks", Tracks2D), store.load("associate", "association", Association),
+        pred.person_ids, pred.frame_indices,
+    )
+    att = attribute_wrong_parts(pred, gt, score, obs, store.load("calibrate", "rig", CameraRig))
+    out.update(
+        wrong_limb_parts=att.wrong_parts,
+        wrong_det_agree_output=att.detections_agree_output,
+        wrong_det_agree_gt=att.detections_agree_gt,
+        wrong_unobserved=att.unobserved,
+    )
+    return out
+
+
 def _targets(rows: list[dict[str, Any]]) -> None:
     """Add ``target`` (text) and ``target_met`` (bool) to the measured rows."""
     by = {r["output"]: r for r in rows}
@@ -228,7 +257,10 @@ def run_bench(
         if stage not in times or not store.has(stage, "keypoints3d.npz"):
             log.info("bench shelf: %s not scored (stage %s not run)", name, stage)
             continue
-        row = _score_row(name, stage, score_shelf(store.load(stage, "keypoints3d", Keypoints3D), gt))
+        pred = coco_to_shelf(store.load(stage, "keypoints3d", Keypoints3D))
+        score = score_shelf(pred, gt)
+        row = _score_row(name, stage, score)
+        row.update(_attribution_columns(store, pred, gt, score))
         row["stage_s"] = times[stage]
         row["pipeline_s"] = sum(times[s] for s in order[: order.index(stage) + 1])
         row["action"] = timing[f"{stage}_action"]
@@ -268,6 +300,10 @@ COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("pcp_lower_arms", "lo arm", "{:.1f}"),
     ("pcp_upper_legs", "up leg", "{:.1f}"),
     ("pcp_lower_legs", "lo leg", "{:.1f}"),
+    ("hip_dz_mm", "hips dz mm", "{:+.0f}"),
+    ("wrong_limb_parts", "wrong limbs", "{}"),
+    ("wrong_det_agree_output", "2D agrees w/ us", "{}"),
+    ("wrong_det_agree_gt", "2D agrees w/ GT", "{}"),
     ("stage_s", "stage s", "{:.1f}"),
     ("pipeline_s", "total s", "{:.1f}"),
     ("residual_force_mean_frac_bw", "resid F mean bw", "{:.3f}"),
