@@ -20,8 +20,11 @@ from typing import Any
 import numpy as np
 import viser
 
+from pipeline.artifacts import ArtifactStore
+from pipeline.runner.core import enabled_stages
+from pipeline.runner.registry import STAGE_ORDER
 from webui.analysis import FrameProblems, compute_problems
-from webui.api_client import ApiClient, ApiError
+from webui.api_client import TERMINAL_JOB_STATES, ApiClient, ApiError
 from webui.client_view import ClientView
 from webui.clients import ClientUser, Identify, identify_with_api, token_of
 from webui.colors import IdentityPalette
@@ -32,8 +35,12 @@ from webui.scene.body import cache_dir as mesh_cache_dir
 from webui.scene.physics_geoms import load_physics_geoms
 from webui.scene.session_data import STAGES_READ, SessionData, artifacts_stamp, load_session_data
 from webui.scene.world import add_world, align_client_camera
+from webui.staleness import StaleMark, layer_states, unix_time
 
 log = logging.getLogger(__name__)
+
+WATCH_S = 1.0
+"""Period of the watch loop (s): artifacts' stamps, the session's identities and its re-run jobs."""
 
 NOT_SIGNED_IN = "**Not signed in.** Open this viewer through the cornerman app: sign in at `/login`, then `/viewer/<session>/`."
 
@@ -75,6 +82,11 @@ class ViewerApp:
         self._stop = threading.Event()
         self._reload_lock = threading.Lock()
         self._palette_from_api = False
+        self._identity_rows: list[dict] | None = None
+        self.stale: StaleMark | None = None
+        """The re-run the viewer waits for after an edit (None: every layer is up to date)."""
+        self._stale_lock = threading.RLock()
+        self._jobs_seen: set[int] = set()
 
         self.data: SessionData = data if data is not None else load_session_data(self.session_dir)
         self.palette = IdentityPalette(None, self.data.config.athletes)
@@ -180,7 +192,9 @@ class ViewerApp:
         if self.session_id is None:
             return
         try:
-            self.palette = IdentityPalette.from_api(api.identities(self.session_id), self.data.config.athletes)
+            rows = api.identities(self.session_id)
+            self.palette = IdentityPalette.from_api(rows, self.data.config.athletes)
+            self._identity_rows = rows
             self._palette_from_api = True
         except (ApiError, ValueError) as e:
             log.warning("identities from the API unavailable (%s): default colours", e)
@@ -259,19 +273,162 @@ class ViewerApp:
 
     # ------------------------------------------------------------------ reload
     def _watch_loop(self) -> None:
-        """Reload when the artifacts change (a re-run started elsewhere, or a finished job)."""
+        """Every ``WATCH_S``: reload when the artifacts change (a re-run started elsewhere, or a
+        finished job), apply renamed / recoloured identities, and follow the session's re-runs."""
         stamp = self.data.stamp
-        while not self._stop.wait(2.0):
+        while not self._stop.wait(WATCH_S):
+            api = self._api()
+            if api is not None and self.session_id is not None:
+                self._poll_identities(api)
+                self._poll_jobs(api)
             try:
                 now = artifacts_stamp(self.session_dir)
             except ValueError as e:
                 log.warning("cannot read the artifacts: %s", e)
                 continue
             if now != stamp:
-                time.sleep(1.0)  # a multi-stage re-run writes several stages in a row
-                stamp = artifacts_stamp(self.session_dir)
+                # A multi-stage re-run writes several stages in a row: wait for a quiet moment,
+                # but never longer than a few seconds (the re-triangulated 3D must show quickly).
+                t_end = time.monotonic() + 3.0
+                while not self._stop.wait(0.3) and time.monotonic() < t_end:
+                    later = artifacts_stamp(self.session_dir)
+                    if later == now:
+                        break
+                    now = later
+                stamp = now
                 if stamp != self.data.stamp:
                     self.reload()
+
+    def _api(self) -> ApiClient | None:
+        """An API client to watch the session with: the default user's, the shared view's or a
+        connected client's (None without an API)."""
+        if self.default_user is not None and self.default_user.api is not None:
+            return self.default_user.api
+        for view in self.all_views():
+            if view.user.api is not None:
+                return view.user.api
+        return None
+
+    def _poll_identities(self, api: ApiClient) -> None:
+        assert self.session_id is not None
+        try:
+            rows = api.identities(self.session_id)
+        except (ApiError, RuntimeError) as e:  # RuntimeError: that client was closed as it left
+            log.debug("identities not polled: %s", e)
+            return
+        if rows != self._identity_rows:
+            self.set_identities(rows)
+
+    def set_identities(self, rows: list[dict]) -> None:
+        """Apply ``GET /identities`` rows (names and colours) to every view: legend, buttons,
+        camera labels, meshes and plots; a bad row is logged and the palette kept."""
+        try:
+            palette = IdentityPalette.from_api(rows, self.data.config.athletes)
+        except ValueError as e:
+            log.warning("%s", e)
+            return
+        first = self._identity_rows is None
+        self.palette, self._identity_rows, self._palette_from_api = palette, rows, True
+        if not first:
+            log.info("identities changed: %s", self.legend())
+        for view in self.all_views():
+            view.on_palette()
+
+    def _poll_jobs(self, api: ApiClient) -> None:
+        """Mark the layers stale for a re-run queued by anyone (this viewer, the annotate page, a
+        script), and follow the job being waited for."""
+        assert self.session_id is not None
+        try:
+            jobs = api.jobs(self.session_id)
+        except (ApiError, RuntimeError) as e:
+            log.debug("jobs not polled: %s", e)
+            return
+        for job in sorted(jobs, key=lambda j: int(j["id"])):
+            jid = int(job["id"])
+            if job.get("status") in TERMINAL_JOB_STATES or not job.get("from_stage") or jid in self._jobs_seen:
+                continue
+            try:
+                since = unix_time(job.get("created_at"))
+            except ValueError as e:
+                log.warning("job %s: %s", jid, e)
+                continue
+            self.mark_stale(str(job["from_stage"]), job, since)
+        mark = self.stale
+        if mark is not None and mark.job_id is not None:
+            followed: dict | None = next((j for j in jobs if int(j["id"]) == mark.job_id), None)
+            if followed is not None:
+                self.on_job(followed)
+
+    # ------------------------------------------------------------------ stale layers
+    def enabled_stages(self) -> list[str]:
+        """The session's stages in pipeline order (every stage when its config cannot be read)."""
+        try:
+            return enabled_stages(self.data.config)
+        except ValueError:
+            return list(STAGE_ORDER)
+
+    def stage_stamps(self) -> dict[str, float]:
+        """Stage -> creation time (Unix s) of the loaded manifest (0 when absent)."""
+        return dict(zip(STAGES_READ, self.data.stamp, strict=False))
+
+    def stage_durations(self) -> dict[str, float]:
+        """Stage -> seconds its last run took (manifests' ``duration_s``): weights of the progress bar."""
+        store = ArtifactStore(self.session_dir)
+        out: dict[str, float] = {}
+        for stage in self.enabled_stages():
+            try:
+                m = store.manifest(stage)
+            except ValueError:
+                m = None
+            if m is not None and m.duration_s > 0:
+                out[stage] = float(m.duration_s)
+        return out
+
+    def mark_stale(self, stale_from: str | None, job: dict | None, since_unix_s: float | None = None) -> None:
+        """An edit made ``stale_from`` and every later stage stale; ``job`` re-runs them (None: no
+        re-run queued). With an earlier mark still pending the earliest stage and the newest
+        edit win (every stage after it must be rewritten after that edit)."""
+        if stale_from is None:
+            return
+        since = time.time() if since_unix_s is None else since_unix_s
+        jid = int(job["id"]) if job else None
+        with self._stale_lock:
+            if jid is not None:
+                self._jobs_seen.add(jid)
+            old = self.stale
+            if old is not None and old.job_id == jid and old.since_unix_s >= since and jid is not None:
+                return  # this viewer's own edit, seen again when polling the jobs
+            if old is not None:
+                first = min((old.stale_from, stale_from), key=STAGE_ORDER.index)
+                self.stale = StaleMark(first, max(old.since_unix_s, since), jid if jid is not None else old.job_id,
+                                       job or old.job)
+            else:
+                self.stale = StaleMark(stale_from, since, jid, job)
+        self.refresh_layers()
+
+    def on_job(self, job: dict) -> None:
+        """A new state of the job the viewer waits for (its progress goes into the layer labels)."""
+        with self._stale_lock:
+            mark = self.stale
+            if mark is None or mark.job_id != int(job["id"]) or mark.job == job:
+                return
+            mark.job = job
+        self.refresh_layers()
+
+    def layer_states(self) -> dict[str, str]:
+        """Layer name -> "" when up to date, else why it is out of date (``webui.staleness``)."""
+        with self._stale_lock:
+            states = layer_states(self.enabled_stages(), self.stale, self.stage_stamps())
+            if self.stale is not None and not any(states.values()):
+                log.info("every layer is up to date again (re-run from %s)", self.stale.stale_from)
+                self.stale = None
+            return states
+
+    def refresh_layers(self) -> None:
+        """Push the layers' states to every view (labels, dimmed meshes and overlays)."""
+        states = self.layer_states()
+        for view in self.all_views():
+            view.show_layers(states)
 
     def reload(self, views: list[ClientView] | None = None) -> None:
         """Re-read the artifacts and rebuild every view (or ``views``); frames and selections stay."""
@@ -285,8 +442,9 @@ class ViewerApp:
             self.problems = compute_problems(data)
             self._attach_heavy(previous)
             self.reloads += 1
+        states = self.layer_states()
         for view in views if views is not None else self.all_views():
-            view.on_reload()
+            view.on_reload(states)
         log.info("reloaded the results (%d)", self.reloads)
 
     def close(self) -> None:

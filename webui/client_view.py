@@ -19,6 +19,7 @@ import viser
 
 from webui.analysis import compute_series
 from webui.clients import ClientUser
+from webui.colors import StalePalette
 from webui.editing import (
     EditHistory,
     Selection,
@@ -30,7 +31,14 @@ from webui.editing import (
 )
 from webui.frames import draw_overlay, overlay_for
 from webui.jobs import JobWatcher, job_fraction, job_summary
-from webui.panels.annotate import NO_TRACK, AnnotateHandles, make_annotate, parse_track_label, track_label
+from webui.panels.annotate import (
+    NO_TRACK,
+    AnnotateHandles,
+    make_annotate,
+    parse_track_label,
+    rename_annotate,
+    track_label,
+)
 from webui.panels.display import label_to_source, make_display, source_options
 from webui.panels.events import follow_frame, make_event_rows, make_events, set_events, wire_events
 from webui.panels.export import make_export, wire_export
@@ -39,6 +47,7 @@ from webui.panels.timeline import make_timeline, set_problems
 from webui.panels.views import make_views
 from webui.scene.persons import DisplayOptions, PersonsScene
 from webui.scope import Scope
+from webui.staleness import SOURCE_LAYER, layers_markdown
 
 if TYPE_CHECKING:
     from webui.app import ViewerApp
@@ -67,7 +76,12 @@ class ClientView:
         # timeline.py / plots.py are typed for a ViserServer but use only ``.gui``, which a client has too.
         as_server = cast(viser.ViserServer, scope)
         who = f" — signed in as **{user.name}** ({user.role})" if user.name else ""
-        scope.gui.add_markdown(f"**{data.config.name}** — {app.legend()}{who}")
+        self._who = who
+        self.header = scope.gui.add_markdown(self._header_text())
+        self.layers = scope.gui.add_markdown("", visible=False)
+        """One line per layer while a re-run after an edit is under way (``webui.staleness``)."""
+        self.stale_layers: frozenset[str] = frozenset()
+        """Layers out of date: drawn dimmed (3D) or grey (2D labels) until their stage is rewritten."""
         self.timeline = make_timeline(as_server, data.n_frames)
         everyone = [(p, palette.name(p)) for p in (data.person_ids or [0, 1])]
         event_rows = make_event_rows(scope, everyone, data.n_frames)
@@ -92,12 +106,16 @@ class ClientView:
         self.persons.build()
         set_problems(self.timeline, app.problems, data.n_frames)
         set_events(self.events, app.events_view(), data.n_frames)
+        self.show_layers(app.layer_states(), render=False)
         self._wire()
         self._thread = threading.Thread(target=self._loop, name=f"view-{self.name}", daemon=True)
         self._thread.start()
         self.request_render()
 
     # ------------------------------------------------------------------ state
+    def _header_text(self) -> str:
+        return f"**{self.app.data.config.name}** — {self.app.legend()}{self._who}"
+
     @property
     def name(self) -> str:
         """For logs: the client id and user (``server`` for a view shared by every client)."""
@@ -166,11 +184,14 @@ class ClientView:
                 names = {p: app.palette.name(p) for p in data.person_ids}
                 self.annotate.selection.content = describe_selection(data, sel, names)
             images = app.provider.frames(frame)
+            stale = self.stale_layers
+            palette = StalePalette(app.palette) if "2D labels" in stale else app.palette
+            reproject = SOURCE_LAYER.get(self.opts.source, "") not in stale
             for v, name in enumerate(data.camera_names):
                 img = images[v]
                 ov = overlay_for(data, v, frame, self.opts.source)
                 st = sel_track if (self.annotate is not None and self.annotate.view.value == name) else None
-                draw_overlay(img, ov, app.provider.scale(v), app.palette, st)
+                draw_overlay(img, ov, app.provider.scale(v), palette, st, show_reprojection=reproject)
                 self.views.images[name].image = img
             problems = app.problems
             kinds = problems.kinds_at(frame) if frame < problems.n_frames else []
@@ -198,10 +219,46 @@ class ClientView:
         if self.annotate.track.value != want:
             self.annotate.track.value = want  # type: ignore[misc]
 
-    def on_reload(self) -> None:
-        """Rebuild what depends on the results after ``ViewerApp.reload`` (keeps the frame and selection)."""
+    def show_layers(self, states: dict[str, str], render: bool = True) -> None:
+        """Show which layers are out of date (``ViewerApp.layer_states``) and dim them."""
+        stale = frozenset(k for k, why in states.items() if why)
+        text = layers_markdown(states)
+        with self._lock:
+            if text != self.layers.content:
+                self.layers.content = text
+            self.layers.visible = bool(text)
+            changed = stale != self.stale_layers
+            self.stale_layers = stale
+            self._apply_dim()
+        if changed and render:
+            self.request_render()
+
+    def _apply_dim(self) -> None:
+        stale = self.stale_layers
+        self.opts.dim_skeleton = SOURCE_LAYER.get(self.opts.source, "") in stale
+        self.opts.dim_body = "fit" in stale
+        self.opts.dim_physics = "physics" in stale
+
+    def on_palette(self) -> None:
+        """Names or colours of the identities changed: legend, buttons, meshes, plots, labels."""
+        app = self.app
+        with self._lock, self.scope.atomic():
+            self.header.content = self._header_text()
+            self.persons.palette = app.palette
+            self.persons.recolor()
+            if self.annotate is not None:
+                rename_annotate(self.annotate, {p: app.palette.name(p) for p in self.annotate.assign})
+            update_plots(self.plots, compute_series(app.data, self.opts.source), app.palette)
+            set_events(self.events, app.events_view(), app.data.n_frames)
+        self.request_render()
+
+    def on_reload(self, states: dict[str, str] | None = None) -> None:
+        """Rebuild what depends on the results after ``ViewerApp.reload`` (keeps the frame and selection);
+        ``states``: the layers' states with the new results."""
         app = self.app
         data = app.data
+        if states is not None:
+            self.show_layers(states, render=False)
         with self._lock, self.scope.atomic():
             self.persons.data = data
             self.persons.body_cache, self.persons.physics_geoms = app.body_cache, app.physics_geoms
@@ -235,6 +292,7 @@ class ClientView:
         @disp.source.on_update
         def _(_: Any) -> None:
             self.opts.source = label_to_source(disp.source.value)
+            self._apply_dim()
             update_plots(self.plots, compute_series(app.data, self.opts.source), app.palette)
             self.request_render()
 
@@ -283,16 +341,18 @@ class ClientView:
 
     def _submit(self, make_edit: Any) -> None:
         assert self.history is not None and self.annotate is not None
+        since = time.time()
         try:
             edit = make_edit()
             res = self.history.submit(edit)
         except (ValueError, RuntimeError) as e:  # ApiError is a ValueError
             self.annotate.status.content = f"Edit refused: {e}"
             return
-        self._after_change(f"Saved {edit.kind} (annotation {res['annotation']['id']})", res)
+        self._after_change(f"Saved {edit.kind} (annotation {res['annotation']['id']})", res, since)
 
     def _history_call(self, which: str) -> None:
         assert self.history is not None and self.annotate is not None
+        since = time.time()
         try:
             res = self.history.undo() if which == "undo" else self.history.redo()
         except ValueError as e:
@@ -301,22 +361,25 @@ class ClientView:
         if res is None:
             self.annotate.status.content = f"Nothing to {which}."
             return
-        self._after_change(f"{which.capitalize()} of annotation {res['annotation']['id']}", res)
+        self._after_change(f"{which.capitalize()} of annotation {res['annotation']['id']}", res, since)
 
-    def _after_change(self, msg: str, res: dict) -> None:
+    def _after_change(self, msg: str, res: dict, since: float) -> None:
         assert self.annotate is not None and self.user.api is not None
         a = self.annotate
         job = res.get("job")
         stale = res.get("stale_from")
         a.status.content = f"{msg}; stale from **{stale}**." + (" Re-run queued." if job else "")
+        self.app.mark_stale(stale, job, since)
         if not job:
             return
+        weights = self.app.stage_durations()
         a.progress.visible = True
         a.progress.value = 0.0  # type: ignore[misc]
 
         def on_update(j: dict) -> None:
-            a.progress.value = 100.0 * job_fraction(j)  # type: ignore[misc]
+            a.progress.value = 100.0 * job_fraction(j, weights)  # type: ignore[misc]
             a.status.content = f"{msg}. {job_summary(j)}"
+            self.app.on_job(j)
 
         def on_end(j: dict) -> None:
             a.progress.value = 100.0  # type: ignore[misc]

@@ -92,3 +92,21 @@ class IdentityPalette:
     def name(self, person_id: int) -> str:
         ident = self.get(person_id)
         return "unassigned" if ident is None else ident.name
+
+
+class StalePalette(IdentityPalette):
+    """The identities of an out-of-date association: every box grey, every name marked "(old)",
+    so that labels from before an edit are never read as the edit's result."""
+
+    def __init__(self, base: IdentityPalette) -> None:
+        super().__init__()
+        self._base = base
+
+    def get(self, person_id: int) -> Identity | None:
+        return self._base.get(person_id)
+
+    def rgb(self, person_id: int) -> tuple[int, int, int]:
+        return UNASSIGNED_RGB
+
+    def name(self, person_id: int) -> str:
+        return f"{self._base.name(person_id)} (old)"

@@ -225,13 +225,15 @@ def _pt(p: np.ndarray, scale: float) -> tuple[int, int]:
 
 
 def draw_overlay(
-    img: np.ndarray, ov: Overlay2D, scale: float, palette: IdentityPalette, selected_track: int | None = None
+    img: np.ndarray, ov: Overlay2D, scale: float, palette: IdentityPalette, selected_track: int | None = None,
+    show_reprojection: bool = True,
 ) -> np.ndarray:
     """Draw ``ov`` on an RGB display image (in place; also returned).
 
     Detections: box + skeleton + ``#track`` label in the colour of their assigned identity
     (grey when unassigned). Reprojection: thin white-edged skeleton in the identity colour,
-    so a mismatch between the two shows at a glance. The selected track gets a thick box.
+    so a mismatch between the two shows at a glance (``show_reprojection=False``: not drawn,
+    e.g. while the 3D result is out of date). The selected track gets a thick box.
     """
     h, w = img.shape[:2]
     lim = 4 * max(h, w)
@@ -240,7 +242,7 @@ def draw_overlay(
         return abs(p[0]) < lim and abs(p[1]) < lim
 
     bones3 = bone_indices(ov.joint_names_3d)
-    for i in range(ov.reproj_px.shape[0]):
+    for i in range(ov.reproj_px.shape[0] if show_reprojection else 0):
         col = palette.rgb(int(ov.reproj_persons[i]))
         pts = ov.reproj_px[i]
         for a, b in bones3:

@@ -4,36 +4,53 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 from webui.api_client import TERMINAL_JOB_STATES, ApiClient, ApiError
+from webui.staleness import stage_progress_text
 
 log = logging.getLogger(__name__)
 
 
-def job_fraction(job: dict) -> float:
-    """Fraction of the job's stages done (running stages count by their own done/total)."""
+FINISHED_STATUSES = ("ran", "skipped", "done", "fresh")
+"""A stage's progress status once it is over (the worker writes ``ran`` / ``skipped``)."""
+
+
+def job_fraction(job: dict, weights: Mapping[str, float] | None = None) -> float:
+    """Fraction of the job done, in [0, 1]: finished stages count fully, the running one by its
+    own ``done / total`` (L-BFGS iterations of the fit, windows of physics).
+
+    ``weights``: stage -> expected seconds (e.g. the previous run's ``duration_s``), so that a
+    long stage fills the bar in proportion; stages without one count as the mean of the others.
+    None: every stage counts the same.
+    """
     prog = job.get("progress") or {}
     if job.get("status") == "done":
         return 1.0
     if not prog:
         return 0.0
-    acc = 0.0
-    for p in prog.values():
+    known = [float(w) for s, w in (weights or {}).items() if s in prog and w and w > 0]
+    default = sum(known) / len(known) if known else 1.0
+    acc = total = 0.0
+    for stage, p in prog.items():
+        w = float((weights or {}).get(stage) or 0.0)
+        w = w if w > 0 else default
+        total += w
         st = p.get("status")
-        if st in ("done", "skipped", "fresh"):
-            acc += 1.0
+        if st in FINISHED_STATUSES:
+            acc += w
         elif st == "running" and p.get("total"):
-            acc += min(1.0, float(p.get("done") or 0) / float(p["total"]))
-    return acc / len(prog)
+            acc += w * min(1.0, max(0.0, float(p.get("done") or 0) / float(p["total"])))
+    return acc / total if total > 0 else 0.0
 
 
 def job_summary(job: dict) -> str:
+    """One line: the job's id and state, the running stage with its progress, or its error."""
     st = job.get("status", "?")
     cur = job.get("current_stage")
     txt = f"Re-run job {job.get('id')}: **{st}**"
     if cur and st == "running":
-        txt += f" ({cur})"
+        txt += f" ({cur}: {stage_progress_text(job, cur)})"
     if st == "failed" and job.get("error"):
         txt += f": {job['error']}"
     return txt

@@ -64,3 +64,14 @@ def make_annotate(server: Scope, camera_names: tuple[str, ...], athletes: list[t
     status = server.gui.add_markdown("")
     progress = server.gui.add_progress_bar(0.0, visible=False)
     return AnnotateHandles(view, track, selection, assign, from_here, swap_scope, swap, split, invalid, undo, redo, status, progress)
+
+
+def rename_annotate(h: AnnotateHandles, names: dict[int, str]) -> None:
+    """Relabel the per-athlete buttons after identities were renamed (``names``: person id -> name)."""
+    for pid, button in h.assign.items():
+        if pid in names:
+            button.label = f"Assign to {names[pid]}"
+            button.hint = f"The selected track is {names[pid]}"
+    pair = [names[p] for p in list(h.assign)[:2] if p in names]
+    if len(pair) == 2:
+        h.swap.label = f"Swap {pair[0]} and {pair[1]}"

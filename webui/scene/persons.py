@@ -46,6 +46,14 @@ def skeleton_segments(kp: Keypoints3D, row: int | None, person_index: int) -> tu
     return segs.astype(np.float32), joints.astype(np.float32), True
 
 
+DIM_RGB: tuple[int, int, int] = (150, 150, 150)
+"""Colour of a layer that is out of date (``webui.staleness``): grey, whoever it shows."""
+DIM_OPACITY = 0.25
+"""Opacity of an out-of-date mesh (fresh: ``BODY_OPACITY`` / ``PHYSICS_OPACITY``)."""
+BODY_OPACITY = 0.85
+PHYSICS_OPACITY = 0.6
+
+
 @dataclass
 class PersonNodes:
     person_id: int
@@ -53,6 +61,8 @@ class PersonNodes:
     joints: viser.PointCloudHandle
     body: viser.MeshHandle | None = None
     physics: viser.MeshHandle | None = None
+    dimmed: dict[str, bool] = field(default_factory=dict)
+    """Part (skeleton / body / physics) -> drawn dimmed now (only changes are sent)."""
 
 
 @dataclass
@@ -61,6 +71,12 @@ class DisplayOptions:
     show_skeleton: bool = True
     show_body: bool = True
     show_physics: bool = True
+    dim_skeleton: bool = False
+    """The skeleton's source is out of date: grey."""
+    dim_body: bool = False
+    """The fit is out of date: body meshes grey and faint."""
+    dim_physics: bool = False
+    """The physics result is out of date: its geoms grey and faint."""
 
 
 @dataclass
@@ -92,6 +108,42 @@ class PersonsScene:
             )
             self.nodes[pid] = PersonNodes(pid, sk, jt)
 
+    def skeleton_rgb(self, pid: int, dim: bool) -> tuple[int, int, int]:
+        return DIM_RGB if dim else self.palette.rgb(pid)
+
+    def body_rgb(self, pid: int, dim: bool) -> tuple[int, int, int]:
+        return DIM_RGB if dim else self.palette.rgb(pid)
+
+    def physics_rgb(self, pid: int, dim: bool) -> tuple[int, int, int]:
+        if dim:
+            return DIM_RGB
+        r, g, b = (int(0.6 * c + 0.4 * 255) for c in self.palette.rgb(pid))
+        return r, g, b
+
+    def _set_skeleton_colour(self, n: PersonNodes, dim: bool) -> None:
+        rgb = np.array(self.skeleton_rgb(n.person_id, dim), dtype=np.uint8)
+        n.skeleton.colors = np.broadcast_to(rgb, n.skeleton.points.shape).copy()
+        n.joints.colors = np.broadcast_to(rgb, n.joints.points.shape).copy()
+        n.dimmed["skeleton"] = dim
+
+    def _set_mesh_look(self, n: PersonNodes, part: str, dim: bool) -> None:
+        mesh = n.body if part == "body" else n.physics
+        if mesh is None:
+            return
+        if part == "body":
+            mesh.color, mesh.opacity = self.body_rgb(n.person_id, dim), DIM_OPACITY if dim else BODY_OPACITY
+        else:
+            mesh.color, mesh.opacity = self.physics_rgb(n.person_id, dim), DIM_OPACITY if dim else PHYSICS_OPACITY
+        n.dimmed[part] = dim
+
+    def recolor(self) -> None:
+        """Apply the palette's (new) colours to every node, keeping dimmed parts grey."""
+        with self.server.atomic():
+            for n in self.nodes.values():
+                self._set_skeleton_colour(n, n.dimmed.get("skeleton", False))
+                for part in ("body", "physics"):
+                    self._set_mesh_look(n, part, n.dimmed.get(part, False))
+
     def remove(self) -> None:
         for n in self.nodes.values():
             for h in (n.skeleton, n.joints, n.body, n.physics):
@@ -99,7 +151,7 @@ class PersonsScene:
                     h.remove()
         self.nodes.clear()
 
-    def _update_body(self, n: PersonNodes, frame: int, show: bool) -> None:
+    def _update_body(self, n: PersonNodes, frame: int, show: bool, dim: bool = False) -> None:
         bf = self.data.bodyfit
         verts = None
         if show and bf is not None and self.body_cache is not None and self.body_cache.faces is not None:
@@ -114,13 +166,17 @@ class PersonsScene:
         if n.body is None:
             assert self.body_cache is not None and self.body_cache.faces is not None
             n.body = self.server.scene.add_mesh_simple(
-                f"/world/persons/{n.person_id}/body", verts, self.body_cache.faces, color=self.palette.rgb(n.person_id), opacity=0.85
+                f"/world/persons/{n.person_id}/body", verts, self.body_cache.faces, color=self.body_rgb(n.person_id, dim),
+                opacity=DIM_OPACITY if dim else BODY_OPACITY,
             )
+            n.dimmed["body"] = dim
         else:
             n.body.vertices = verts
             n.body.visible = True
+            if n.dimmed.get("body", False) != dim:
+                self._set_mesh_look(n, "body", dim)
 
-    def _update_physics(self, n: PersonNodes, frame: int, show: bool) -> None:
+    def _update_physics(self, n: PersonNodes, frame: int, show: bool, dim: bool = False) -> None:
         ph = self.data.physics
         mesh = None
         if show and ph is not None and self.physics_geoms is not None:
@@ -133,14 +189,16 @@ class PersonsScene:
             return
         verts, faces = mesh
         if n.physics is None:
-            r, g, b = (int(0.6 * c + 0.4 * 255) for c in self.palette.rgb(n.person_id))
-            col = (r, g, b)
             n.physics = self.server.scene.add_mesh_simple(
-                f"/world/persons/{n.person_id}/physics", verts, faces, color=col, opacity=0.6, flat_shading=True
+                f"/world/persons/{n.person_id}/physics", verts, faces, color=self.physics_rgb(n.person_id, dim),
+                opacity=DIM_OPACITY if dim else PHYSICS_OPACITY, flat_shading=True,
             )
+            n.dimmed["physics"] = dim
         else:
             n.physics.vertices = verts
             n.physics.visible = True
+            if n.dimmed.get("physics", False) != dim:
+                self._set_mesh_look(n, "physics", dim)
 
     def update(self, frame: int, opts: DisplayOptions) -> None:
         """Show every person at ``frame`` (one atomic scene update)."""
@@ -156,8 +214,10 @@ class PersonsScene:
                         n.joints.points = _pad(joints, n.joints.points.shape[0], joints[0])
                 n.skeleton.visible = ok and opts.show_skeleton
                 n.joints.visible = ok and opts.show_skeleton
-                self._update_body(n, frame, opts.show_body)
-                self._update_physics(n, frame, opts.show_physics)
+                if n.dimmed.get("skeleton", False) != opts.dim_skeleton:
+                    self._set_skeleton_colour(n, opts.dim_skeleton)
+                self._update_body(n, frame, opts.show_body, opts.dim_body)
+                self._update_physics(n, frame, opts.show_physics, opts.dim_physics)
 
 
 def frame_row_of(frame_indices: np.ndarray, frame: int) -> int | None:
