@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -80,6 +80,11 @@ class PhysicsResult:
         contact_body: (contacts, 2) body names' indices into ``body_names``.
         contact_depth_m: (contacts,) penetration depth (positive = overlap).
         body_names: names of MuJoCo bodies referenced by ``contact_body``.
+        untrackable: (frames, persons) bool, True where the person's receding-horizon
+            window could not be tracked without the residual root force (diverged, or
+            missed the joints by more than ``ResidualConfig.fallback_tol_m`` on average;
+            residual modes ``off`` and ``fallback``, all False in ``always``); (0, 0) in
+            a result written before it was recorded.
     """
 
     person_ids: np.ndarray
@@ -96,10 +101,13 @@ class PhysicsResult:
     contact_body: np.ndarray
     contact_depth_m: np.ndarray
     body_names: tuple[str, ...]
+    untrackable: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
 
     def __post_init__(self) -> None:
         f = self.frame_indices.shape[0] if isinstance(self.frame_indices, np.ndarray) else -1
         p = self.person_ids.shape[0] if isinstance(self.person_ids, np.ndarray) else -1
+        if not (isinstance(self.untrackable, np.ndarray) and self.untrackable.shape == (0, 0)):
+            check_array("PhysicsResult.untrackable", self.untrackable, (f, p), "b")
         check_array("PhysicsResult.frame_indices", self.frame_indices, (f,), "iu")
         check_array("PhysicsResult.person_ids", self.person_ids, (p,), "iu")
         check_array("PhysicsResult.qpos", self.qpos, (f, None), "f", finite=True)

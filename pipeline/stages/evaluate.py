@@ -42,6 +42,7 @@ FLAG_KINDS: tuple[FlagKind, ...] = (
     FlagKind("penetration_high", "penetration high"),
     FlagKind("residual_high", "residual root force high", "physics"),
     FlagKind("torque_high", "joint torque over human limit", "physics"),
+    FlagKind("untrackable", "not trackable without a residual root force", "physics"),
 )
 """The columns of ``ProblemFlags.flags``, in order: the one list every reader uses (the
 benches, the viewer). A new kind is appended here and computed in ``problem_flags``."""
@@ -230,10 +231,26 @@ def physics_effort_per_frame(ph: PhysicsEffortInputs | None, frames: np.ndarray)
     return res, tau
 
 
+def untrackable_per_frame(ph: PhysicsEffortInputs | None, frames: np.ndarray) -> np.ndarray:
+    """(frames,) bool: some athlete's physics window could not be tracked without a residual
+    root force (``PhysicsResult.untrackable``) at video frames ``frames`` (sorted); False
+    where physics has no frame or its result did not record it."""
+    F = frames.shape[0]
+    out = np.zeros(F, dtype=bool)
+    if ph is None or F == 0 or ph.result.untrackable.shape[0] != ph.result.frame_indices.shape[0]:
+        return out
+    r = ph.result
+    row = np.searchsorted(frames, r.frame_indices)
+    ok = (row < F) & (frames[np.minimum(row, F - 1)] == r.frame_indices)
+    out[row[ok]] = np.asarray(r.untrackable.any(axis=1))[ok]
+    return out
+
+
 def problem_flags(inp: EvaluateInputs, cfg: EvaluateConfig) -> ProblemFlags:
     """Per-frame identity doubt, disagreement with the cameras and penetration of the shown
     (last) result, each per athlete and robust to a single bad view, and the physics
-    effort (residual, joint torques) when physics ran (``EvaluateConfig``)."""
+    effort (residual, joint torques) and its windows not trackable without a residual when
+    physics ran (``EvaluateConfig``)."""
     best = next(iter(reversed(inp.sources.values())))
     frames = best.frame_indices
     F = frames.size
@@ -263,6 +280,7 @@ def problem_flags(inp: EvaluateInputs, cfg: EvaluateConfig) -> ProblemFlags:
         "penetration_high": pen > cfg.penetration_high_mm,
         "residual_high": res > cfg.residual_high_frac_bw,
         "torque_high": tau > cfg.torque_high_ratio,
+        "untrackable": untrackable_per_frame(inp.physics, frames),
     }
     flags = np.stack([by_kind[k.key] for k in FLAG_KINDS], axis=1).reshape(F, len(FLAG_KINDS))
     kinds = np.array([k.key for k in FLAG_KINDS])

@@ -16,8 +16,11 @@ gloves. Between video frames the servo targets move along the reference at every
 substep, with inverse-dynamics feed-forward whose ground reactions sit on the planted
 feet (``schedule``). The initial controls of every window are that schedule; the
 iLQR optimises the servo targets and the residual root servos' targets. The residual
-root wrench (feed-forward + PD, ≤ ``residual_force_frac`` body weights) lets the
-kinematic, not dynamically consistent motion be followed; its use is reported.
+root wrench (feed-forward + PD, ≤ ``residual.force_frac`` body weights per axis) lets
+the kinematic, not dynamically consistent motion be followed; its use is reported. With
+``residual.mode`` ``off`` or ``fallback`` the windows that cannot be tracked without it
+are flagged per frame (``PhysicsResult.untrackable``), counted in the stats
+(``untrackable_windows``, ``untrackable_frames``) and summarised in one log warning.
 
 mujoco is only imported inside ``run`` via ``pipeline.backends``.
 """
@@ -370,7 +373,9 @@ def _run(
     ctrl = np.zeros((F, scene.model.nu))
     force = np.zeros((F, scene.model.nu))
     resid = np.zeros((F, len(rows), 6))
-    agg: dict[str, float] = {"windows": 0, "windows_with_residual": 0, "iterations": 0, "resets": 0, "kinematic_frames": 0}
+    untrackable = np.zeros((F, len(rows)), dtype=bool)
+    agg: dict[str, float] = {"windows": 0, "windows_with_residual": 0, "untrackable_windows": 0, "iterations": 0, "resets": 0, "kinematic_frames": 0}
+    untrackable_starts: list[tuple[int, int]] = []
     secs: dict[str, float] = {}
     done = [0]
     ref_digest = np.zeros(0, dtype=np.uint64)
@@ -410,8 +415,12 @@ def _run(
             ctrl[:, dst] = sol.ctrl[:, src]
             force[:, dst] = sol.actuator_force[:, src]
             resid[:, i] = sol.root_wrench[:, i_sub]
+        per_frame = mp.untrackable_frames(sol.records, F)
+        untrackable[:, g] |= per_frame[:, None]
+        untrackable_starts += _runs(per_frame)
         agg["windows"] += sol.windows
         agg["windows_with_residual"] += sol.windows_with_residual
+        agg["untrackable_windows"] += sol.untrackable_windows
         agg["iterations"] += sol.iterations
         agg["resets"] += sol.resets
         agg["kinematic_frames"] += sol.kinematic_frames
@@ -434,6 +443,7 @@ def _run(
         contact_body=contacts.body,
         contact_depth_m=contacts.depth_m,
         body_names=contacts.body_names,
+        untrackable=untrackable,
     )
     names = scene.site_names
     out_kp = Keypoints3D.empty(names, np.asarray(pids), kp.frame_indices, kp.fps, "physics")
@@ -452,6 +462,9 @@ def _run(
     motion_s = max(F - 1, 1) / kp.fps
     body_pen = mp.deepest_inter_person_mm(contacts, F)
     weight_n = np.array([p.mass_kg * 9.81 for p in lay.persons])
+    n_bad, bad_frames = int(agg["untrackable_windows"]), int(untrackable.any(axis=1).sum())
+    if n_bad:
+        log.warning(untrackable_message(cfg.residual.mode, n_bad, int(agg["windows"]), untrackable_starts, kp.frame_indices))
     stats: dict[str, Any] = {
         "mode": cfg.mode,
         "skeleton": skeleton_kind,
@@ -465,6 +478,11 @@ def _run(
         "foot_site_offset_mm_mean": round(foot_offsets_mm, 2),
         "windows": int(agg["windows"]),
         "windows_with_residual": int(agg["windows_with_residual"]),
+        "residual_mode": cfg.residual.mode,
+        "untrackable_windows": n_bad,
+        "untrackable_windows_pct": 100.0 * n_bad / max(int(agg["windows"]), 1),
+        "untrackable_frames": bad_frames,
+        "untrackable_frames_pct": 100.0 * bad_frames / max(F, 1),
         "iterations": int(agg["iterations"]),
         "resets": int(agg["resets"]),
         "kinematic_frames": int(agg["kinematic_frames"]),
@@ -484,6 +502,28 @@ def _run(
         **{f"seconds_{k}": v for k, v in secs.items()},
     }
     return PhysicsOutput(result=result, keypoints=out_kp, mjcf=scene.mjcf, stats=stats, checkpoints=checkpoints)
+
+
+def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """Inclusive (first, last) rows of each run of True in ``flags`` (frames,)."""
+    d = np.diff(np.r_[0, flags.astype(np.int8), 0])
+    return list(zip(np.flatnonzero(d == 1).tolist(), (np.flatnonzero(d == -1) - 1).tolist(), strict=True))
+
+
+def untrackable_message(
+    mode: str, n_bad: int, n_windows: int, runs: list[tuple[int, int]], frame_indices: np.ndarray, shown: int = 8
+) -> str:
+    """The run's one warning about windows that could not be tracked without the residual
+    root force: how many, their video frames (``runs``: inclusive rows of
+    ``frame_indices``; the first ``shown`` listed) and what residual ``mode`` did."""
+    spans = sorted({(int(frame_indices[a]), int(frame_indices[b])) for a, b in runs})
+    text = ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in spans[:shown])
+    more = f", … ({len(spans) - shown} more)" if len(spans) > shown else ""
+    what = (
+        "retried with the residual (residual.mode=fallback; stats: windows_with_residual)" if mode == "fallback"
+        else "kept without it (residual.mode=off; stats: untrackable_windows)"
+    )
+    return f"physics: {n_bad} of {n_windows} windows (frames {text}{more}) could not be tracked without a residual root force; {what}"
 
 
 def _previous_or_why(
@@ -520,8 +560,10 @@ def _resume_from(prev: PhysicsPrevious, first_ref_change: int, n_frames: int, cf
     k = replan_window(starts, n_frames, cfg.solver.window, first_ref_change)
     if k == 0:
         return None, f"the reference changed from frame {first_ref_change} on, inside the first window"
+    if res.untrackable.shape[0] != n_frames:
+        return None, "the previous run did not record which windows could not be tracked without the residual"
     resume = mp.BoutResume(
         windows=ck.records(), replan_from=k, qpos=res.qpos, qvel=res.qvel, ctrl=res.ctrl,
-        actuator_force=res.joint_torque_nm, root_wrench=res.residual_root_force,
+        actuator_force=res.joint_torque_nm, root_wrench=res.residual_root_force, untrackable=np.asarray(res.untrackable.any(axis=1)),
     )
     return resume, ""

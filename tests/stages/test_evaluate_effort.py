@@ -120,3 +120,19 @@ def test_flags_written_before_the_physics_kinds_still_load() -> None:
     assert pf.column("residual_high") is None and pf.residual_frac_bw.size == 0
     with pytest.raises(ValueError, match=r"flags of shape \(4, 3\) for \(4,\) frames"):
         ProblemFlags(**old, flag_kinds=np.array([k.key for k in FLAG_KINDS]))
+
+
+def test_untrackable_physics_windows_are_a_physics_flag_per_frame() -> None:
+    """``PhysicsResult.untrackable`` (per frame and athlete) becomes the ``untrackable``
+    column on the shown frames, any athlete; a result that did not record it flags nothing."""
+    assert next(k for k in FLAG_KINDS if k.key == "untrackable").group == "physics"
+    ph = _physics()
+    bad = np.zeros((PHYS_FRAMES.size, 2), bool)
+    bad[3 - 2 : 6 - 2, 1] = True  # frames 3-5: person 1's window
+    bad[9 - 2, 0] = True  # frame 9: person 0
+    bad[11 - 2, 0] = True  # frame 11: not shown
+    metrics, flags = run(_inputs(dataclasses.replace(ph, result=dataclasses.replace(ph.result, untrackable=bad))), EvaluateConfig())
+    assert _col(flags, "untrackable") == [3, 4, 5, 9]
+    assert metrics["problem_frames"]["untrackable"] == 4
+    _, flags = run(_inputs(ph), EvaluateConfig())  # written before the flag existed: (0, 0)
+    assert ph.result.untrackable.shape == (0, 0) and _col(flags, "untrackable") == []

@@ -103,20 +103,28 @@ class ResidualConfig:
 
     mode: Literal["always", "fallback", "off"] = "always"
     """``always``: in every window; ``fallback``: only in windows tracked worse than
-    ``fallback_tol_m`` without it; ``off``: never (no root actuation at all)."""
+    ``fallback_tol_m`` without it; ``off``: never (no root actuation at all). ``off`` and
+    ``fallback`` flag the windows that could not be tracked without it
+    (``PhysicsResult.untrackable``, stats ``untrackable_windows``)."""
     force_frac: float = 2.0
-    """Limit of the residual root force per axis, as a fraction of body weight, >= 0."""
+    """Hard limit of the residual root force on each world axis (x, y, z: the root servos'
+    force range), as a fraction of body weight, > 0; its magnitude is at most √3 × this
+    (0.05: 5 % per axis, 8.7 % in all; 0.0289 caps the magnitude at 5 %)."""
     torque_frac: float = 2.0
-    """Limit of the residual root torque, as a fraction of body weight × 0.3 m, >= 0."""
+    """Limit of the residual root torque's feed-forward and proportional parts, as a fraction
+    of body weight × 0.3 m, >= 0 (its damping part, the root joint's, is not limited)."""
     saturation_m: float = 0.1
     """Root position error (m, > 0) at which the force's PD part saturates."""
     rot_saturation_rad: float = 0.03
     """Root orientation error (rad, > 0) at which the torque's PD part saturates."""
     fallback_tol_m: float = 0.05
-    """``fallback``: mean joint error (m, > 0) above which a window is redone with the residual."""
+    """Mean keypoint-site error (m, > 0) of a window tracked without the residual above which
+    it counts as untrackable (modes ``off`` and ``fallback``; ``fallback`` redoes it with
+    the residual)."""
 
     def __post_init__(self) -> None:
-        _check(self, positive=("saturation_m", "rot_saturation_rad", "fallback_tol_m"), non_negative=("force_frac", "torque_frac"))
+        # force_frac 0 would be an empty force range, which MuJoCo refuses: no residual is mode "off".
+        _check(self, positive=("force_frac", "saturation_m", "rot_saturation_rad", "fallback_tol_m"), non_negative=("torque_frac",))
 
 
 @dataclass(frozen=True)
@@ -257,4 +265,10 @@ def nested_from_dicts(obj: Any) -> None:
         v = getattr(obj, f.name)
         default = f.default_factory() if callable(f.default_factory) else None  # type: ignore[misc]
         if isinstance(v, dict) and default is not None and hasattr(default, "__dataclass_fields__"):
-            object.__setattr__(obj, f.name, type(default)(**v))
+            cls = type(default)
+            unknown = sorted(set(v) - {g.name for g in fields(cls)})
+            if unknown:
+                raise ValueError(
+                    f"{type(obj).__name__}.{f.name}: unknown keys {unknown}; known: {sorted(g.name for g in fields(cls))}"
+                )
+            object.__setattr__(obj, f.name, cls(**v))

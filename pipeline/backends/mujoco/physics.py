@@ -57,6 +57,7 @@ __all__ = [
     "servo_feedforward",
     "site_targets",
     "sole_heights_m",
+    "untrackable_frames",
 ]
 
 log = logging.getLogger(__name__)
@@ -74,6 +75,9 @@ class BoutSolution:
     root_wrench: np.ndarray  # (F, persons, 6) residual root force (N) and torque (N·m), world
     windows: int = 0
     windows_with_residual: int = 0
+    untrackable_windows: int = 0
+    """Windows that could not be tracked without the residual root force
+    (``WindowRecord.untrackable``; 0 in residual mode ``always``, which does not try)."""
     resets: int = 0
     kinematic_frames: int = 0
     """Frames of windows that diverged even from the reference state: they hold the
@@ -100,7 +104,11 @@ class WindowRecord:
     controls of this window's first k steps (0 <= k < window); residual: whether the
     residual root wrench acted; iterations: iLQR iterations; reset: restarted from the
     reference state; kinematic: frames that kept the reference (diverged);
-    cost_first/cost_final: the window's cost before and after the iLQR (nan: none)."""
+    cost_first/cost_final: the window's cost before and after the iLQR (nan: none);
+    untrackable: without the residual root force the window diverged, was reset or
+    tracked the sites worse than ``ResidualConfig.fallback_tol_m`` on average (residual
+    modes ``off`` and ``fallback``; in ``fallback`` exactly the windows redone with the
+    residual; always False in mode ``always``, which never tracks without it)."""
 
     start: int
     qpos: np.ndarray
@@ -113,6 +121,7 @@ class WindowRecord:
     kinematic: int = 0
     cost_first: float = float("nan")
     cost_final: float = float("nan")
+    untrackable: bool = False
 
 
 @dataclass(frozen=True)
@@ -124,7 +133,9 @@ class BoutResume:
     windows: nothing is re-planned), which starts from its record's state, warm start and
     carried controls; qpos (frames, nq), qvel (frames, nv), ctrl, actuator_force
     (frames, nu), root_wrench (frames, persons, 6): the previous solution, whose frames
-    before that window's start (all frames when nothing is re-planned) are copied."""
+    before that window's start (all frames when nothing is re-planned) are copied;
+    untrackable (frames,) bool: the previous solution's ``untrackable_frames``, which sets
+    the kept windows' ``WindowRecord.untrackable`` (None: the records' own flags)."""
 
     windows: tuple[WindowRecord, ...]
     replan_from: int
@@ -133,6 +144,17 @@ class BoutResume:
     ctrl: np.ndarray
     actuator_force: np.ndarray
     root_wrench: np.ndarray
+    untrackable: np.ndarray | None = None
+
+
+def untrackable_frames(records: list[WindowRecord] | tuple[WindowRecord, ...], n_frames: int) -> np.ndarray:
+    """(n_frames,) bool: the frames of the windows flagged ``untrackable``; a window owns
+    the frames from its start up to the next window's start (the last one: to the end)."""
+    out = np.zeros(n_frames, dtype=bool)
+    for w, r in enumerate(records):
+        end = records[w + 1].start if w + 1 < len(records) else n_frames
+        out[r.start : end] = r.untrackable
+    return out
 
 
 def _first_stable(
@@ -198,10 +220,17 @@ def _resume(sol: BoutSolution, resume: BoutResume, n_frames: int, cfg: SolverCon
     s = starts[k] if k < len(starts) else n_frames
     for name in ("qpos", "qvel", "ctrl", "actuator_force", "root_wrench"):
         getattr(sol, name)[:s] = getattr(resume, name)[:s]
-    for w in resume.windows[:k]:
+    flags = resume.untrackable
+    if flags is not None and np.shape(flags) != (n_frames,):
+        raise ValueError(f"optimise_bout: resume untrackable flags of shape {np.shape(flags)}, expected ({n_frames},)")
+    for i, w in enumerate(resume.windows[:k]):
+        if flags is not None:
+            end = starts[i + 1] if i + 1 < len(starts) else n_frames
+            w = dataclasses.replace(w, untrackable=bool(flags[w.start : end].any()))
         sol.records.append(w)
         sol.windows += 1
         sol.windows_with_residual += int(w.residual)
+        sol.untrackable_windows += int(w.untrackable)
         sol.iterations += w.iterations
         sol.resets += int(w.reset)
         sol.kinematic_frames += w.kinematic
@@ -232,6 +261,10 @@ def optimise_bout(
     state, so the whole output is one continuous simulation. Cost is linear in the
     number of frames. The residual root wrench is used as ``residual.mode`` says (the
     scene must have its actuators, ``build_scene(residual=...)``, unless it is off).
+    In modes ``off`` and ``fallback`` every window is first tracked without it, and one
+    that diverges or misses the sites by more than ``residual.fallback_tol_m`` on average
+    is flagged (``WindowRecord.untrackable``, ``BoutSolution.untrackable_windows``):
+    ``fallback`` redoes it with the residual, ``off`` keeps it as it is.
 
     ``resume``: start at a window of a previous solution of the same scene, from its stored
     state, warm start and carried controls, and copy the frames before it; with the same
@@ -291,8 +324,11 @@ def optimise_bout(
             both = np.concatenate([servo, resid])
             u0[:nc, both] = carry[:nc, both]
             use_res = residual.mode == "always" and resid.size > 0
+            # Modes off and fallback first track without the residual; what fails is flagged.
+            checked = residual.mode != "always"
             set_residual(use_res)
             res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg.ilqr, active(use_res), s, warm, scene.substeps)
+            untrackable = checked and res_or_none is None  # diverged: redone with the residual or reset
             if res_or_none is None and residual.mode != "off" and resid.size and not use_res:
                 use_res = True
                 set_residual(True)
@@ -316,7 +352,10 @@ def optimise_bout(
                     sol.qvel[s + 1 : s + C + 1] = ref.qvel[s + 1 : s + C + 1]
                     sol.ctrl[s : s + C] = ref.ctrl[s : s + C]
                     sol.kinematic_frames += C
-                    sol.records.append(dataclasses.replace(start, residual=use_res, iterations=sol.iterations - it0, reset=True, kinematic=C))
+                    sol.untrackable_windows += int(checked)
+                    sol.records.append(dataclasses.replace(
+                        start, residual=use_res, iterations=sol.iterations - it0, reset=True, kinematic=C, untrackable=checked,
+                    ))
                     qpos0, qvel0, warm = sol.qpos[s + C].copy(), sol.qvel[s + C].copy(), None
                     carry = np.zeros((0, m.nu))
                     s += C
@@ -325,9 +364,10 @@ def optimise_bout(
                         progress(sol.windows, n_windows, f"window {sol.windows}/{n_windows}: diverged, kept the reference")
                     continue
             res = res_or_none
-            if residual.mode == "fallback" and resid.size and not use_res:
+            if checked and not untrackable:
                 err = _mean_site_error(scene, res.traj.qpos, targets[s : s + H + 1], weight[s : s + H + 1])
-                if err > residual.fallback_tol_m:
+                untrackable = err > residual.fallback_tol_m
+                if untrackable and residual.mode == "fallback" and resid.size:
                     for k_, v_ in res.seconds.items():
                         sol.seconds[k_] += v_
                     sol.iterations += res.iterations
@@ -342,11 +382,12 @@ def optimise_bout(
             sol.iterations += res.iterations
             sol.windows += 1
             sol.windows_with_residual += int(use_res)
+            sol.untrackable_windows += int(untrackable)
             sol.cost_first.append(res.cost_history[0])
             sol.cost_final.append(res.cost_history[-1])
             sol.records.append(dataclasses.replace(
                 start, residual=use_res, iterations=sol.iterations - it0, reset=sol.resets > resets0,
-                cost_first=float(res.cost_history[0]), cost_final=float(res.cost_history[-1]),
+                cost_first=float(res.cost_history[0]), cost_final=float(res.cost_history[-1]), untrackable=untrackable,
             ))
             C = _committed_frames(s, H, F, cfg.commit)
             tr = res.traj
