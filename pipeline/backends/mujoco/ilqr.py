@@ -19,8 +19,9 @@ One iteration:
 
 from __future__ import annotations
 
-import contextlib
 import logging
+import os
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -186,6 +187,77 @@ class Linearisation:
     seconds_cost: float = 0.0
 
 
+def default_threads() -> int:
+    """Worker threads of the finite differences and the line search: 2, or fewer when this
+    process may use fewer CPUs (the result does not depend on it)."""
+    return max(1, min(2, len(os.sched_getaffinity(0))))
+
+
+class Workers:
+    """A thread pool with one ``MjData`` of ``model`` per thread (MuJoCo releases the GIL
+    while it steps, so finite differences and rollouts on separate data run in parallel).
+
+    ``threads`` = 1: no pool, everything runs on the caller's thread with its own data."""
+
+    def __init__(self, model: mujoco.MjModel, threads: int) -> None:
+        if threads < 1:
+            raise ValueError(f"ilqr.Workers: threads must be >= 1, got {threads}")
+        self.model = model
+        self.threads = threads
+        self._local = threading.local()
+        self.pool = ThreadPoolExecutor(threads, thread_name_prefix="ilqr") if threads > 1 else None
+
+    def data(self) -> mujoco.MjData:
+        """The calling thread's own ``MjData`` of the model."""
+        d = getattr(self._local, "d", None)
+        if d is None:
+            d = self._local.d = mujoco.MjData(self.model)
+        return d
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown()
+
+    def __enter__(self) -> Workers:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def knot_jacobians(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    cost: Cost,
+    qpos: np.ndarray,
+    qvel: np.ndarray,
+    warm: np.ndarray,
+    u: np.ndarray,
+    t: int,
+    cfg: ILQRConfig,
+    substeps: int = 1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(A (nx, nx), B (nx, nu)) of one control step (``substeps`` MuJoCo steps with the
+    control held, the cost's ``prepare`` before each) at state (qpos, qvel, warm start) and
+    control u, by ``mujoco.mjd_transitionFD`` on ``data`` (overwritten), chained over the
+    substeps: x' = f(f(x, u), u) (the cost's time-dependent offsets do not depend on u)."""
+    nx = 2 * model.nv
+    Ab = np.zeros((nx, nx))
+    Bb = np.zeros((nx, model.nu))
+    _set_state(model, data, qpos, qvel, warm)
+    data.ctrl[:] = u
+    cost.prepare(model, data, t, 0)
+    mujoco.mjd_transitionFD(model, data, cfg.fd_eps, cfg.fd_centered, Ab, Bb, None, None)
+    A_t, B_t = Ab.copy(), Bb.copy()
+    for sub in range(1, substeps):
+        mujoco.mj_step(model, data)
+        data.ctrl[:] = u
+        cost.prepare(model, data, t, sub)
+        mujoco.mjd_transitionFD(model, data, cfg.fd_eps, cfg.fd_centered, Ab, Bb, None, None)
+        A_t, B_t = Ab @ A_t, Ab @ B_t + Bb
+    return A_t, B_t
+
+
 def linearise(
     model: mujoco.MjModel,
     data: mujoco.MjData,
@@ -196,14 +268,17 @@ def linearise(
     t0: int = 0,
     dynamics: Linearisation | None = None,
     substeps: int = 1,
+    workers: Workers | None = None,
 ) -> Linearisation:
     """Dynamics Jacobians and cost derivatives along ``traj`` (see module docstring);
     ``substeps`` MuJoCo steps per control step, chained.
 
     ``dynamics``: a previous linearisation whose A, B are reused (only the cost
-    derivatives are recomputed; ``ILQRConfig.jacobian_reuse``)."""
+    derivatives are recomputed; ``ILQRConfig.jacobian_reuse``). ``workers``: the knots'
+    finite differences run on its threads, each on its own data, while this thread
+    computes the cost derivatives on ``data`` (the same numbers as without it)."""
     H = traj.ctrl.shape[0]
-    nv, nu = model.nv, model.nu
+    nv = model.nv
     nx, na = 2 * nv, active.size
     tick = time.perf_counter
     lin = Linearisation(
@@ -214,10 +289,18 @@ def linearise(
         lxx=np.zeros((H + 1, nx, nx)),
         luu=np.zeros((H, na, na)),
     )
-    Ab = np.zeros((nx, nx))
-    Bb = np.zeros((nx, nu))
     every = max(1, cfg.deriv_every)
-    knots = sorted(set(list(range(0, H, every)) + [H - 1]))
+    knots = sorted(set(list(range(0, H, every)) + [H - 1])) if dynamics is None else []
+
+    def fd(t: int, d: mujoco.MjData | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+        c0 = tick()
+        dd = d if d is not None else workers.data()  # type: ignore[union-attr]
+        A_t, B_t = knot_jacobians(model, dd, cost, traj.qpos[t], traj.qvel[t], traj.warmstart[t], traj.ctrl[t], t0 + t, cfg, substeps)
+        return A_t, B_t[:, active], tick() - c0
+
+    pool = workers.pool if workers is not None else None
+    c_start = tick()
+    futures = [pool.submit(fd, t) for t in knots] if pool is not None else []
     for t in range(H + 1):
         c0 = tick()
         _set_state(model, data, traj.qpos[t], traj.qvel[t], traj.warmstart[t])
@@ -231,26 +314,14 @@ def linearise(
         if u is not None:
             lin.lu[t] = lu[active]
             lin.luu[t] = luu[np.ix_(active, active)]
-            if t in knots and dynamics is None:
-                c0 = tick()
-                _set_state(model, data, traj.qpos[t], traj.qvel[t], traj.warmstart[t])
-                data.ctrl[:] = u
-                cost.prepare(model, data, t0 + t, 0)
-                mujoco.mjd_transitionFD(model, data, cfg.fd_eps, cfg.fd_centered, Ab, Bb, None, None)
-                A_t, B_t = Ab.copy(), Bb.copy()
-                for sub in range(1, substeps):
-                    # Chain rule over substeps with the control held: x' = f(f(x, u), u)
-                    # (plus the cost's time-dependent offsets, which do not depend on u).
-                    mujoco.mj_step(model, data)
-                    data.ctrl[:] = u
-                    cost.prepare(model, data, t0 + t, sub)
-                    mujoco.mjd_transitionFD(model, data, cfg.fd_eps, cfg.fd_centered, Ab, Bb, None, None)
-                    A_t, B_t = Ab @ A_t, Ab @ B_t + Bb
-                lin.A[t] = A_t
-                lin.B[t] = B_t[:, active]
-                lin.seconds_fd += tick() - c0
-    if dynamics is not None:
+    if not knots:
         return lin
+    results = [fd(t, data) for t in knots] if pool is None else [f.result() for f in futures]
+    for t, (A_t, B_t, _) in zip(knots, results, strict=True):
+        lin.A[t], lin.B[t] = A_t, B_t
+    # Wall time: with a pool the finite differences overlap the cost derivatives, and count
+    # for the rest of this call's time.
+    lin.seconds_fd = tick() - c_start - lin.seconds_cost
     for a, b in zip(knots[:-1], knots[1:], strict=True):
         for t in range(a + 1, b):
             w = (t - a) / (b - a)
@@ -328,15 +399,20 @@ def optimise(
     t0: int = 0,
     warm0: np.ndarray | None = None,
     substeps: int = 1,
+    threads: int | None = None,
 ) -> ILQRResult:
     """Minimise Σ_t l(x_t, u_t, t0+t) + l_T(x_H) over the ``active`` controls, each control
     held for ``substeps`` MuJoCo steps (the model's timestep is the control period / substeps).
 
     The returned cost history is non-increasing (a step is only accepted if it
     lowers the total cost). Raises ``UnstableRollout`` if the initial rollout is unstable.
+
+    ``threads``: worker threads of the finite differences and the line search (None:
+    ``cfg.rollout_threads`` if above 1, else ``default_threads()``); the result does not
+    depend on it.
     """
-    pool = ThreadPoolExecutor(cfg.rollout_threads, thread_name_prefix="ilqr-rollout") if cfg.rollout_threads > 1 else None
-    with pool if pool is not None else contextlib.nullcontext():
+    n_threads = threads if threads is not None else (cfg.rollout_threads if cfg.rollout_threads > 1 else default_threads())
+    with Workers(model, n_threads) as workers:
         act = np.arange(model.nu) if active is None else np.asarray(active, dtype=np.int64)
         secs = {"derivatives_fd": 0.0, "derivatives_cost": 0.0, "backward": 0.0, "rollouts": 0.0}
         c0 = time.perf_counter()
@@ -352,7 +428,7 @@ def optimise(
         while it < cfg.max_iter:
             it += 1
             reuse = lin if (it - 1) % cfg.jacobian_reuse else None
-            lin = linearise(model, data, cost, nominal, cfg, act, t0=t0, dynamics=reuse, substeps=substeps)
+            lin = linearise(model, data, cost, nominal, cfg, act, t0=t0, dynamics=reuse, substeps=substeps, workers=workers)
             secs["derivatives_fd"] += lin.seconds_fd
             secs["derivatives_cost"] += lin.seconds_cost
             improved = False
@@ -371,7 +447,7 @@ def optimise(
                 best: Trajectory | None = None
                 best_alpha = 0.0
                 c0 = time.perf_counter()
-                cands = _candidates(model, data, cost, qpos0, qvel0, nominal, K, k, alphas, act, t0, warm0, substeps, pool)
+                cands = _candidates(model, data, cost, qpos0, qvel0, nominal, K, k, alphas, act, t0, warm0, substeps, workers)
                 for a, cand in zip(alphas, cands, strict=True):
                     if cand.total < (best.total if best is not None else nominal.total):
                         best, best_alpha = cand, float(a)
@@ -423,14 +499,14 @@ def _candidates(
     t0: int,
     warm0: np.ndarray | None,
     substeps: int,
-    pool: ThreadPoolExecutor | None,
+    workers: Workers | None,
 ) -> list[Trajectory]:
     """Closed-loop rollouts of every line-search step size, in ``alphas`` order."""
 
-    def one(a: float, d: mujoco.MjData) -> Trajectory:
-        return rollout(model, d, cost, qpos0, qvel0, nominal.ctrl, t0, nominal, K, k, a, act, warm0, substeps)
+    def one(a: float, d: mujoco.MjData | None = None) -> Trajectory:
+        dd = d if d is not None else workers.data()  # type: ignore[union-attr]
+        return rollout(model, dd, cost, qpos0, qvel0, nominal.ctrl, t0, nominal, K, k, a, act, warm0, substeps)
 
-    if pool is None:
+    if workers is None or workers.pool is None:
         return [one(float(a), data) for a in alphas]
-    datas = [data] + [mujoco.MjData(model) for _ in alphas[1:]]
-    return list(pool.map(one, [float(a) for a in alphas], datas))
+    return list(workers.pool.map(one, [float(a) for a in alphas]))

@@ -23,6 +23,7 @@ normal n (geom1 → geom2): ∂dist/∂q = nᵀ (J_body2(p) − J_body1(p)).
 from __future__ import annotations
 
 import copy
+import math
 import threading
 from dataclasses import dataclass
 
@@ -147,6 +148,15 @@ class TrackingCost:
         self.residual_on = False
         self._tau_lim, self._kp_rot, self._kd_rot = np.zeros(P), np.zeros(P), np.zeros(P)
         self._acts = np.concatenate([layout.servo_ids, layout.residual_ids]).astype(np.int64)
+        # (frames, persons, sites) square roots of the body- and world-frame site weights.
+        self._sqrt_w_body = np.sqrt(ref.site_weight * (1.0 - weights.world_frac))
+        self._sqrt_w_world = np.sqrt(ref.site_weight * weights.world_frac)
+        sch = ref.schedule
+        # (frames, substeps, acts) what ``prepare`` adds to a frame's servo targets at each substep.
+        self._ctrl_shift = (
+            None if sch is None else sch.ctrl[:, :, self._acts] - sch.ctrl[:, :1, self._acts]
+        )
+        self._ref_cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]] = {}
         # Per-control weight of the deviation from the reference's targets: w_reg for the
         # servos, w_residual for the residual root servos (their use is to be rare).
         self._u_weight = np.concatenate(
@@ -168,8 +178,7 @@ class TrackingCost:
         for i, p in enumerate(lay.persons):
             proot = data.xpos[p.root_body]
             R = data.xmat[p.root_body].reshape(3, 3)
-            w = np.sqrt(ref.site_weight[t, i] * (1.0 - self.w.world_frac))
-            ww = np.sqrt(ref.site_weight[t, i] * self.w.world_frac)
+            w, ww = self._sqrt_w_body[t, i], self._sqrt_w_world[t, i]
             sites = ref.site_ids[i]
             v = data.site_xpos[sites] - proot  # (S, 3)
             local = v @ R  # R^T v per row
@@ -261,45 +270,64 @@ class TrackingCost:
             self._kp_rot = self._tau_lim / saturation_rad
             inertia = np.array([p.mass_kg * 0.15**2 for p in self.layout.persons])
             self._kd_rot = 2.0 * np.sqrt(self._kp_rot * inertia)
+            self._ref_cache.clear()
         for i, dofs in enumerate(self._root_rot_dofs):
             extra = self._kd_rot[i] if on else 0.0
             self.model.dof_damping[dofs] = self._root_damping0[i] + extra
 
-    def _root_torque_parts(self, qpos: np.ndarray, qvel: np.ndarray, t: int, sub: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    def _root_ref(self, t: int, sub: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
+        """Per person, the reference's part of the residual root torque at substep ``sub`` of
+        frame ``t`` (clamped to the reference): (root quaternion wxyz (4,), kd·ω̂ in the
+        world (3,) N·m, feed-forward torque (3,) N·m or None). Cached: they depend on the
+        reference and the gains only, and ``prepare`` needs them at every substep."""
+        key = (t, sub)
+        hit = self._ref_cache.get(key)
+        if hit is not None:
+            return hit
+        tr = self._t(t)
+        sch = self.ref.schedule
+        s = min(max(sub, 0), sch.substeps - 1) if sch is not None else 0
+        R_ref = np.zeros(9)
+        out = []
+        for i, p in enumerate(self.layout.persons):
+            if sch is not None:
+                q_ref = sch.qpos[tr, s, p.qpos_adr + 3 : p.qpos_adr + 7].copy()
+                w_loc = sch.qvel[tr, s, p.qvel_adr + 3 : p.qvel_adr + 6]
+                ff: np.ndarray | None = sch.root_torque[tr, s, i].copy()
+            else:
+                q_ref = self._ref_root[i][1][tr].copy()
+                w_loc = self.ref.qvel[tr, p.qvel_adr + 3 : p.qvel_adr + 6]
+                ff = None if self.ref.root_torque_ff is None else self.ref.root_torque_ff[tr, i].copy()
+            mujoco.mju_quat2Mat(R_ref, q_ref)
+            w_ref = R_ref.reshape(3, 3) @ w_loc
+            out.append((q_ref, self._kd_rot[i] * w_ref, ff))
+        self._ref_cache[key] = out
+        return out
+
+    def _root_torque_parts(
+        self, qpos: np.ndarray, qvel: np.ndarray, t: int, sub: int = 0, implicit: bool = True
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(explicit, implicit) residual root torques (persons, 3), world frame, N·m, at
         substep ``sub`` of frame ``t`` (the reference interpolated there when it has a
-        schedule)."""
+        schedule); ``implicit=False`` leaves the implicit part at zero (``prepare``)."""
         P = len(self.layout.persons)
         expl, impl = np.zeros((P, 3)), np.zeros((P, 3))
         if not self.residual_on:
             return expl, impl
-        tr = self._t(t)
-        sch = self.ref.schedule
-        sub = min(max(sub, 0), sch.substeps - 1) if sch is not None else 0
         R = np.zeros(9)
-        R_ref = np.zeros(9)
-        for i, p in enumerate(self.layout.persons):
-            q = qpos[p.qpos_adr + 3 : p.qpos_adr + 7]
-            if sch is not None:
-                q_ref = sch.qpos[tr, sub, p.qpos_adr + 3 : p.qpos_adr + 7]
-                w_loc = sch.qvel[tr, sub, p.qvel_adr + 3 : p.qvel_adr + 6]
-            else:
-                q_ref = self._ref_root[i][1][tr]
-                w_loc = self.ref.qvel[tr, p.qvel_adr + 3 : p.qvel_adr + 6]
-            err = np.zeros(3)
-            mujoco.mju_subQuat(err, q, q_ref)
-            mujoco.mju_quat2Mat(R, q)
-            mujoco.mju_quat2Mat(R_ref, q_ref)
+        err = np.zeros(3)
+        for i, (p, (q_ref, kd_w_ref, ff)) in enumerate(zip(self.layout.persons, self._root_ref(t, sub), strict=True)):
+            mujoco.mju_subQuat(err, qpos[p.qpos_adr + 3 : p.qpos_adr + 7], q_ref)
+            mujoco.mju_quat2Mat(R, qpos[p.qpos_adr + 3 : p.qpos_adr + 7])
             Rm = R.reshape(3, 3)
-            w_ref = R_ref.reshape(3, 3) @ w_loc
             tau = -self._kp_rot[i] * (Rm @ err)
-            if sch is not None:
-                tau = tau + sch.root_torque[tr, sub, i]
-            elif self.ref.root_torque_ff is not None:
-                tau = tau + self.ref.root_torque_ff[tr, i]
-            n = np.linalg.norm(tau)
-            expl[i] = (tau if n <= self._tau_lim[i] else tau * (self._tau_lim[i] / n)) + self._kd_rot[i] * w_ref
-            impl[i] = -self._kd_rot[i] * (Rm @ qvel[p.qvel_adr + 3 : p.qvel_adr + 6])
+            if ff is not None:
+                tau = tau + ff
+            # sqrt(τ·τ): what np.linalg.norm computes for a vector, without its overhead.
+            n = math.sqrt(float(tau.dot(tau)))
+            expl[i] = (tau if n <= self._tau_lim[i] else tau * (self._tau_lim[i] / n)) + kd_w_ref
+            if implicit:
+                impl[i] = -self._kd_rot[i] * (Rm @ qvel[p.qvel_adr + 3 : p.qvel_adr + 6])
         return expl, impl
 
     def root_torque(self, qpos: np.ndarray, qvel: np.ndarray, t: int) -> np.ndarray:
@@ -313,14 +341,12 @@ class TrackingCost:
         (the frame's controls, set by the caller) along the reference's schedule, and
         apply the explicit part of the residual root torque of the current state (when
         the residual is on; its damping part is the joint's)."""
-        sch = self.ref.schedule
-        if sch is not None and sub > 0:
-            tr = self._t(t)
-            k = min(sub, sch.substeps - 1)
-            data.ctrl[self._acts] += sch.ctrl[tr, k, self._acts] - sch.ctrl[tr, 0, self._acts]
+        if self._ctrl_shift is not None and sub > 0:
+            k = min(sub, self._ctrl_shift.shape[1] - 1)
+            data.ctrl[self._acts] += self._ctrl_shift[self._t(t), k]
         if not self.residual_on:
             return
-        tau, _ = self._root_torque_parts(data.qpos, data.qvel, t, sub)
+        tau, _ = self._root_torque_parts(data.qpos, data.qvel, t, sub, implicit=False)
         for i, p in enumerate(self.layout.persons):
             data.xfrc_applied[p.root_body, 3:6] = tau[i]
 
