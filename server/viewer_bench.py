@@ -8,7 +8,8 @@ reports the viewer process's resident memory (``VmRSS``) with no client, one cli
 of them, the memory per client, the peak of its child processes (the body mesh worker) and
 its CPU while the clients are paused, while one and then all of them play (and how many frames
 each playing client gets per second), and after they all left while playing (Play must stop with
-its client). Target: ≤ 400 MB per viewer with 5 clients.
+its client). Target: ≤ 400 MB per viewer with 5 clients. ``feedback=true``: the latency rows of
+``server.feedback_bench`` instead (scrub, identity edit -> re-triangulated view, playback rate).
 
 ``session``: an already-run session folder to serve (e.g. the demo bout with fit and physics,
 whose body meshes dominate); default: a synthetic bout with the 2D/3D stages only.
@@ -221,14 +222,22 @@ def _settle(pid: int, seconds: float, peak: list[float]) -> float:
 
 
 def run_bench(n_clients: int = 5, session: str = "", settle_s: float = 4.0, mesh_timeout_s: float = 300.0,
-              clients: str = "ws", home: Path | None = None) -> list[dict[str, Any]]:
+              clients: str = "ws", home: Path | None = None, feedback: bool = False, n_scrub: int = 50,
+              play_s: float = 10.0, chromium: bool = True) -> list[dict[str, Any]]:
     """Start a server with one session, connect ``n_clients`` to its viewer, report memory rows.
 
     ``clients``: ``ws`` (websocket clients, light enough for 5 on 2 cores) or ``browser`` (headless
     Chromium pages, ``/usr/bin/chromium`` and playwright; frames per second are not counted then).
+    ``feedback``: instead, the latency rows of ``server.feedback_bench`` (scrub over ``n_scrub``
+    frames, identity edit, ``play_s`` s of playback in Chromium unless ``chromium`` is false) on ``session``.
     """
     from server.cli import create_user
     from server.demo import make_session
+
+    if feedback:
+        from server.feedback_bench import run_feedback
+
+        return run_feedback(session, n_scrub=n_scrub, play_s=play_s, browser=chromium, home=home)
 
     if n_clients < 1:
         raise ValueError(f"bench viewer: n_clients must be >= 1, got {n_clients}")
