@@ -12,7 +12,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from pipeline import __version__
 from server.api.main import api_router
-from server.api.routes import login, pages, viewer_proxy
+from server.api.routes import annotate, frames, login, pages, viewer_proxy
 from server.core.config import Settings, get_settings
 from server.core.security import install_log_redaction
 from server.db import init_db, make_engine
@@ -116,6 +116,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(login.router)
     app.include_router(pages.router)
     app.include_router(viewer_proxy.router)
+    app.include_router(frames.router, prefix="/api")  # the annotate page's frames and detections
+    app.include_router(annotate.router)  # GET /sessions/{id}/annotate and its script and stylesheet
     install_log_redaction()  # uvicorn's access log never shows a token, even from an old ``?token=`` link
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_upload_bytes)
     return app

@@ -75,7 +75,8 @@ def _job_cell(job: Job | None) -> str:
 
 def _actions(b: Bout, job: Job | None, user: User) -> str:
     """The row's buttons the user's role allows: viewer, run, cancel (own job or admin), delete."""
-    out = [f'<a id="v{b.id}" href="{viewer_path(b.id or 0)}" target="_blank" rel="noopener">Open viewer</a>']
+    out = [f'<a id="v{b.id}" href="{viewer_path(b.id or 0)}" target="_blank" rel="noopener">Open viewer</a>',
+           f'<a id="an{b.id}" href="/sessions/{b.id}/annotate">Annotate</a>']
     busy = job is not None and job.status not in JOB_TERMINAL
     if role_at_least(user.role, "annotator") and not busy:
         out.append(f'<form class="inline" method="post" action="/sessions/{b.id}/run">'

@@ -1,0 +1,1 @@
+"""Files the app serves as they are (pages without a build step)."""
