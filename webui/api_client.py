@@ -104,6 +104,10 @@ class ApiClient:
         params = {"include_superseded": "true" if include_superseded else "false"}
         return self._request("GET", f"/sessions/{session_id}/annotations", params=params)
 
+    def history(self, session_id: str) -> list[dict]:
+        """Every edit of the session, newest first, with author, time, summary and state."""
+        return self._request("GET", f"/sessions/{session_id}/annotations/history")
+
     def add_annotation(self, session_id: str, annotation: dict, rerun: bool = True) -> dict:
         """Store an edit (a ``pipeline.schema.annotations`` dict); -> ``{annotation, job, stale_from}``."""
         return self._request("POST", f"/sessions/{session_id}/annotations", json={"annotation": annotation, "rerun": rerun})

@@ -353,6 +353,8 @@ class ViewerApp:
                 log.warning("job %s: %s", jid, e)
                 continue
             self.mark_stale(str(job["from_stage"]), job, since)
+            for view in self.all_views():  # an edit made elsewhere: show it in the history
+                view.refresh_history()
         mark = self.stale
         if mark is not None and mark.job_id is not None:
             followed: dict | None = next((j for j in jobs if int(j["id"]) == mark.job_id), None)

@@ -32,9 +32,13 @@ from webui.editing import (
 from webui.frames import draw_overlay, overlay_for
 from webui.jobs import JobWatcher, job_fraction, job_summary
 from webui.panels.annotate import (
+    NO_ENTRY,
     NO_TRACK,
     AnnotateHandles,
+    entry_label,
+    history_markdown,
     make_annotate,
+    parse_entry_label,
     parse_track_label,
     rename_annotate,
     track_label,
@@ -92,7 +96,7 @@ class ClientView:
         if self.history is not None:
             with tabs.add_tab("Edit"):
                 athletes = [(p, palette.name(p)) for p in (data.person_ids or [0, 1])[:2]]
-                self.annotate = make_annotate(scope, data.camera_names, athletes)
+                self.annotate = make_annotate(scope, data.camera_names, athletes, data.n_frames)
         with tabs.add_tab("Plots"):
             self.plots = make_plots(as_server, compute_series(data, app.default_source()), palette)
         with tabs.add_tab("Events"):
@@ -108,6 +112,9 @@ class ClientView:
         set_events(self.events, app.events_view(), data.n_frames)
         self.show_layers(app.layer_states(), render=False)
         self._wire()
+        self._entries: list[dict] = []
+        if self.annotate is not None:
+            self.refresh_history()
         self._thread = threading.Thread(target=self._loop, name=f"view-{self.name}", daemon=True)
         self._thread.start()
         self.request_render()
@@ -331,9 +338,23 @@ class ClientView:
         def do_swap() -> Any:
             if len(ids) < 2:
                 raise ValueError("a swap needs two athletes")
-            return swap_edit(self.selection(), ids[0], ids[1], a.swap_scope.value == "all views")
+            return swap_edit(self.selection(), ids[0], ids[1], a.swap_scope.value == "all views", int(a.swap_until.value))
+
+        @a.until_here.on_click
+        def _(_: Any) -> None:
+            a.swap_until.value = self.frame  # type: ignore[misc]
 
         a.swap.on_click(lambda _: self._submit(do_swap))
+        a.undo_entry.on_click(lambda _: self._undo_entry())
+
+        @a.goto_entry.on_click
+        def _(_: Any) -> None:
+            aid = parse_entry_label(a.entry.value)
+            entry = next((e for e in self._entries if e["id"] == aid), None)
+            payload = (entry or {}).get("payload") or {}
+            frame = payload.get("frame", payload.get("frame_start"))
+            if frame is not None:
+                self.set_frame(min(int(frame), self.app.data.n_frames - 1))
         a.split.on_click(lambda _: self._submit(lambda: split_edit(self.selection())))
         a.invalid.on_click(lambda _: self._submit(lambda: invalid_edit(self.selection())))
         a.undo.on_click(lambda _: self._history_call("undo"))
@@ -363,6 +384,38 @@ class ClientView:
             return
         self._after_change(f"{which.capitalize()} of annotation {res['annotation']['id']}", res, since)
 
+    def _undo_entry(self) -> None:
+        assert self.history is not None and self.annotate is not None
+        aid = parse_entry_label(self.annotate.entry.value)
+        if aid is None:
+            self.annotate.status.content = "Choose an active edit in the history first."
+            return
+        since = time.time()
+        try:
+            res = self.history.undo_entry(aid)
+        except ValueError as e:
+            self.annotate.status.content = f"undo of #{aid} failed: {e}"
+            return
+        self._after_change(f"Undo of annotation {aid}", res, since)
+
+    def refresh_history(self) -> None:
+        """Re-read the edit history into the Edit tab (list and the dropdown of active entries)."""
+        if self.history is None or self.annotate is None:
+            return
+        a = self.annotate
+        try:
+            entries = self.history.entries()
+        except (ValueError, RuntimeError) as e:  # ApiError; RuntimeError: client closed as it left
+            log.debug("%s: history not read: %s", self.name, e)
+            return
+        self._entries = entries
+        a.history.content = history_markdown(entries)
+        opts = tuple(entry_label(e) for e in entries if e.get("state") == "active") or (NO_ENTRY,)
+        if opts != tuple(a.entry.options):
+            keep = a.entry.value if a.entry.value in opts else opts[0]
+            a.entry.options = opts
+            a.entry.value = keep  # type: ignore[misc]
+
     def _after_change(self, msg: str, res: dict, since: float) -> None:
         assert self.annotate is not None and self.user.api is not None
         a = self.annotate
@@ -370,6 +423,7 @@ class ClientView:
         stale = res.get("stale_from")
         a.status.content = f"{msg}; stale from **{stale}**." + (" Re-run queued." if job else "")
         self.app.mark_stale(stale, job, since)
+        self.refresh_history()
         if not job:
             return
         weights = self.app.stage_durations()

@@ -53,8 +53,15 @@ def assign_edit(data: SessionData, sel: Selection, person: int, from_here: bool)
     return AssignIdentity(view=sel.view, track=sel.track, frame_start=start, frame_end=hi, person=person)
 
 
-def swap_edit(sel: Selection, person_a: int, person_b: int, all_views: bool) -> SwapIdentities:
-    return SwapIdentities(frame=sel.frame, person_a=person_a, person_b=person_b, view="" if all_views else sel.view)
+def swap_edit(sel: Selection, person_a: int, person_b: int, all_views: bool, until: int = 0) -> SwapIdentities:
+    """Swap from the selection's frame; ``until`` > 0 ends it before that frame (0: to the end);
+    ``ValueError`` when ``until`` does not come after the frame."""
+    if until < 0:
+        raise ValueError(f"swap until frame must be >= 0 (0: to the end), got {until}")
+    if until and until <= sel.frame:
+        raise ValueError(f"swap until frame {until} must come after the current frame {sel.frame} (or be 0: to the end)")
+    return SwapIdentities(frame=sel.frame, person_a=person_a, person_b=person_b, view="" if all_views else sel.view,
+                          frame_end=until or None)
 
 
 def split_edit(sel: Selection) -> SplitTrack:
@@ -92,6 +99,16 @@ class EditHistory:
         res = self.api.undo(last["id"], rerun=True)
         self.redo_stack.append(int(last["id"]))
         return res
+
+    def undo_entry(self, annotation_id: int) -> dict:
+        """Revert edit ``annotation_id`` (any active one); it can then be redone."""
+        res = self.api.undo(annotation_id, rerun=True)
+        self.redo_stack.append(int(annotation_id))
+        return res
+
+    def entries(self) -> list[dict]:
+        """The session's edit history, newest first (``GET .../annotations/history``)."""
+        return self.api.history(self.session_id)
 
     def redo(self) -> dict | None:
         if not self.redo_stack:

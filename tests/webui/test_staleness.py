@@ -174,7 +174,7 @@ def test_identity_rename_and_colour_reach_an_open_viewer(api_env: ApiEnv, server
         assert r.status_code == 200, r.text
         assert _wait(lambda: "Rojo" in app.header.content, 5.0), app.header.content
         assert "Red" not in app.header.content
-        assert a.assign[0].label == "Assign to Rojo"
+        assert a.assign[0].label == "Assign to Rojo" and a.swap.label == "Swap Rojo and Blue from this frame"
         assert _colours(app, 0) == {(0x10, 0xC0, 0x40)}
         app.timeline.frame.value = 3
         app.render(3)
