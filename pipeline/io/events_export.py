@@ -15,11 +15,13 @@ JSON (``events_to_json``)::
       "clinches": [{"start_frame", "end_frame", "start_s", "end_s", "source"}, ...]
     }
 
-Times are seconds from frame 0 (``frame / fps``); ``punch`` is the index in ``punches``
-of the punch evaded; ``source`` says who made the event: ``detector``, ``corrected`` (an
+Times are seconds from frame 0 (``frame / fps``); ``evades`` are the defence against one
+punch: ``kind`` slip, duck, block or parry (``pipeline.schema.analytics.EVADE_KINDS``;
+``displacement_m``: a slip's or duck's head displacement, a block's or parry's sideways
+deflection of the punching glove); ``punch`` is the index in ``punches`` of the punch defended; ``source`` says who made the event: ``detector``, ``corrected`` (an
 annotator changed its type or outcome) or ``annotator`` (added by hand;
 ``pipeline.schema.analytics.EVENT_SOURCES``). CSV (``events_to_csv``) has one row per event with the union of
-those columns and ``event`` = punch, slip, duck or clinch.
+those columns and ``event`` = punch, slip, duck, block, parry or clinch.
 """
 
 from __future__ import annotations
@@ -109,7 +111,7 @@ def events_to_json(events: BoutEvents, names: dict[int, str] | None = None, sour
 
 
 def events_to_csv(events: BoutEvents, names: dict[int, str] | None = None) -> str:
-    """One row per event (punches, slips and ducks, clinches), ordered by start frame."""
+    """One row per event (punches, slips, ducks, blocks, parries, clinches), ordered by start frame."""
     doc = events_to_json(events, names)
     rows: list[dict[str, Any]] = [{"event": "punch", **p} for p in doc["punches"]]
     rows += [{"event": e["kind"], **{k: v for k, v in e.items() if k != "kind"}} for e in doc["evades"]]

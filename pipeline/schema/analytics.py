@@ -32,8 +32,11 @@ TARGETS: tuple[str, ...] = ("head", "body", "guard", "none")
 OUTCOMES: tuple[str, ...] = ("landed", "blocked", "missed")
 """landed: the glove reaches the head or trunk; blocked: it stops on the gloves or arms;
 missed: it touches neither."""
-EVADE_KINDS: tuple[str, ...] = ("slip", "duck")
-"""slip: the head leaves the punch's line sideways; duck: it drops under it."""
+EVADE_KINDS: tuple[str, ...] = ("slip", "duck", "block", "parry")
+"""Defence against one punch (``BoutEvents.evade_*`` rows). slip: the head leaves the punch's
+line sideways; duck: it drops under it; block: the punch's glove stops on the defender's glove
+or forearm; parry: the defender's glove meets the punching arm moving across its line and
+deflects it (``pipeline.stages.analyze.blocks``)."""
 EVENT_SOURCES: tuple[str, ...] = ("detector", "corrected", "annotator")
 """Who made an event: the detector, the detector with an annotator's correction of its type or
 outcome (``correct_event``), or an annotator (``add_event``; its speed, extension and
@@ -77,7 +80,8 @@ def _check_intervals(name: str, start: np.ndarray, end: np.ndarray, n: int, peak
 
 @dataclass(frozen=True)
 class BoutEvents:
-    """Punches, evasions and clinches found in a bout (``punches``, ``evades``, ``clinches`` rows).
+    """Punches, defence (slips, ducks, blocks, parries) and clinches found in a bout
+    (``punches``, ``evades``, ``clinches`` rows).
 
     Fields:
         fps: frame rate of the frame indices (Hz).
@@ -95,12 +99,15 @@ class BoutEvents:
         punch_confidence: (punches,) in [0, 1]: a heuristic score (how clearly the motion
             passes the detection thresholds, times the keypoints' confidence), not a
             calibrated probability.
-        evade_person: (evades,) athlete who evaded.
-        evade_kind: (evades,) ``EVADE_KINDS``.
-        evade_start_frame / evade_peak_frame / evade_end_frame: (evades,) frames.
-        evade_displacement_m: (evades,) head displacement at the peak (sideways for a slip,
-            down for a duck), metres.
-        evade_punch: (evades,) row of the punch evaded.
+        evade_person: (evades,) athlete who defended.
+        evade_kind: (evades,) ``EVADE_KINDS``: slip, duck, block or parry.
+        evade_start_frame / evade_peak_frame / evade_end_frame: (evades,) frames (a block:
+            first contact / closest approach / last contact; a parry: the defender's glove
+            starts across / first contact / end of the deflection window).
+        evade_displacement_m: (evades,) metres, >= 0: a slip's sideways and a duck's downward
+            head displacement at the peak; a block's or parry's sideways deflection of the
+            punching glove after the contact.
+        evade_punch: (evades,) row of the punch defended.
         clinch_start_frame / clinch_end_frame: (clinches,) inclusive frames of each clinch
             (both athletes' torsos close with the arms wrapped around the other).
         punch_source / evade_source / clinch_source: (punches,) / (evades,) / (clinches,)
@@ -212,6 +219,10 @@ class AthleteSeries:
             chin (negative = below the chin).
         punches_per_min: (frames, persons) punches thrown in the trailing window
             (``WorkRateConfig.window_s``) per minute.
+        position_xy_m: (frames, persons, 2) horizontal mid-hip position in the world frame,
+            metres (0 where ``position_valid`` is False); empty in artifacts written before
+            the field existed (read as never known).
+        position_valid: (frames, persons) bool: the mid-hip is known.
     """
 
     frame_indices: np.ndarray
@@ -224,10 +235,15 @@ class AthleteSeries:
     stance_width_m: np.ndarray
     guard_height_m: np.ndarray
     punches_per_min: np.ndarray
+    position_xy_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 2)))
+    position_valid: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
 
     def __post_init__(self) -> None:
         f = self.frame_indices.shape[0] if isinstance(self.frame_indices, np.ndarray) else -1
         p = self.person_ids.shape[0] if isinstance(self.person_ids, np.ndarray) else -1
+        if isinstance(self.position_xy_m, np.ndarray) and self.position_xy_m.size == 0 and min(f, p) >= 0:
+            object.__setattr__(self, "position_xy_m", np.zeros((f, p, 2)))
+            object.__setattr__(self, "position_valid", np.zeros((f, p), dtype=bool))
         check_array("AthleteSeries.frame_indices", self.frame_indices, (f,), "iu")
         check_array("AthleteSeries.person_ids", self.person_ids, (p,), "iu")
         check_array("AthleteSeries.valid", self.valid, (f, p), "b")
@@ -237,6 +253,8 @@ class AthleteSeries:
         check_array("AthleteSeries.stance_width_m", self.stance_width_m, (f, p), "f", finite=True)
         check_array("AthleteSeries.guard_height_m", self.guard_height_m, (f, p, 2), "f", finite=True)
         check_array("AthleteSeries.punches_per_min", self.punches_per_min, (f, p), "f", finite=True)
+        check_array("AthleteSeries.position_xy_m", self.position_xy_m, (f, p, 2), "f", finite=True)
+        check_array("AthleteSeries.position_valid", self.position_valid, (f, p), "b")
         if not (np.isfinite(self.fps) and self.fps > 0):
             raise ValueError(f"AthleteSeries.fps must be positive, got {self.fps}")
         bad = np.setdiff1d(np.unique(self.stance), list(STANCE_CODES))

@@ -22,8 +22,9 @@ AnnotationKind = Literal[
     "correct_event", "add_event", "delete_event",
 ]
 
-EVENT_KINDS: tuple[str, ...] = ("punch", "slip", "duck", "clinch")
-"""Events of the analyze stage an annotator can correct, add or delete (``BoutEvents`` rows)."""
+EVENT_KINDS: tuple[str, ...] = ("punch", "slip", "duck", "block", "parry", "clinch")
+"""Events of the analyze stage an annotator can correct, add or delete (``BoutEvents`` rows;
+slip, duck, block and parry are the defender's, tied to the opponent's punch)."""
 
 
 @dataclass(frozen=True)
@@ -144,7 +145,7 @@ class AddEvent:
 class DeleteEvent:
     """The detector's ``event`` of ``person`` at ``frame`` is not one: it is removed (matched as
     for ``CorrectEvent``; a clinch by ``frame`` within its span, either athlete). Deleting a
-    punch also deletes the evasions of it."""
+    punch also deletes the defence (slips, ducks, blocks, parries) against it."""
 
     person: int
     event: str

@@ -58,7 +58,7 @@ BAD = [
         {"kind": "add_event", "person": 1, "event": "duck", "frame_start": 1, "frame_end": 9, "hand": "left"},
         "hand only apply to a punch",
     ),
-    ({"kind": "delete_event", "person": 0, "event": "block", "frame": 5}, "event 'block' is not one of"),
+    ({"kind": "delete_event", "person": 0, "event": "feint", "frame": 5}, "event 'feint' is not one of"),
     ({"kind": "delete_event", "person": -1, "event": "punch", "frame": 5}, "person -1 is not a person"),
 ]
 

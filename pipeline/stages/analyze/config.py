@@ -128,7 +128,8 @@ class OutcomeConfig:
 
 @dataclass(frozen=True)
 class DefenceConfig:
-    """Slips and ducks (the defender's head leaving a punch's line) and clinches."""
+    """Slips and ducks (the defender's head leaving a punch's line), blocks and parries
+    (``blocks``) and clinches."""
 
     slip_min_m: float = 0.12
     """Sideways head displacement across the punch's line that makes a slip (m, > 0)."""
@@ -142,11 +143,20 @@ class DefenceConfig:
     """... and a wrist of each athlete within this of the other's torso centre (m, > 0)."""
     clinch_min_s: float = 0.3
     """Clinches shorter than this are dropped; gaps shorter than this are bridged (s, > 0)."""
+    parry_min_speed_mps: float = 1.0
+    """A parrying glove moves across the punch's line at least this fast before the contact (m/s, > 0)."""
+    parry_min_deflection_m: float = 0.05
+    """... and deflects the punching glove sideways, its way, by at least this (m, > 0)."""
+    deflect_window_s: float = 0.06
+    """Span before a contact over which velocities are taken, and after it over which the
+    deflection is measured (s, > 0; at least one frame)."""
 
     def __post_init__(self) -> None:
         _positive("DefenceConfig", slip_min_m=self.slip_min_m, duck_min_m=self.duck_min_m,
                   evade_before_s=self.evade_before_s, clinch_torso_m=self.clinch_torso_m,
-                  clinch_wrap_m=self.clinch_wrap_m, clinch_min_s=self.clinch_min_s)  # fmt: skip
+                  clinch_wrap_m=self.clinch_wrap_m, clinch_min_s=self.clinch_min_s,
+                  parry_min_speed_mps=self.parry_min_speed_mps, parry_min_deflection_m=self.parry_min_deflection_m,
+                  deflect_window_s=self.deflect_window_s)  # fmt: skip
 
 
 @dataclass(frozen=True)

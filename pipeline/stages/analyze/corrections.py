@@ -17,11 +17,11 @@ from typing import Any
 import numpy as np
 
 from pipeline.evaluate.glove_contact import glove_gaps
-from pipeline.schema.analytics import BoutEvents
+from pipeline.schema.analytics import EVADE_KINDS, BoutEvents
 from pipeline.schema.annotation_checks import AnnotationBounds, check_annotation
 from pipeline.schema.annotation_text import describe_annotation
 from pipeline.schema.annotations import AddEvent, Annotation, CorrectEvent, DeleteEvent
-from pipeline.stages.analyze import outcome
+from pipeline.stages.analyze import blocks, outcome
 from pipeline.stages.analyze.body import Body
 from pipeline.stages.analyze.config import AnalyzeConfig
 
@@ -117,7 +117,7 @@ def _candidates(a: CorrectEvent | DeleteEvent, punches: list[dict[str, Any]], ev
                 clinches: list[dict[str, Any]]) -> list[dict[str, Any]]:  # fmt: skip
     if a.event == "punch":
         return [p for p in punches if p["person"] == a.person]
-    if a.event in ("slip", "duck"):
+    if a.event in EVADE_KINDS:
         return [e for e in evades if e["person"] == a.person and e["kind"] == a.event]
     return clinches if a.event == "clinch" else []
 
@@ -228,6 +228,33 @@ def _evade_of(
             "displacement": displacement, "punch": punch, "source": "annotator"}  # fmt: skip
 
 
+def _guard_of(
+    a: AddEvent, me: Athlete, frames: np.ndarray, punches: list[dict[str, Any]], cfg: AnalyzeConfig
+) -> dict[str, Any] | str:
+    """An added block or parry: tied to the opponent's punch whose strike is nearest its peak
+    (``frame``, else that strike clipped to the span), its displacement the punching glove's
+    deflection after the peak on the 3D (``blocks.deflection_at``; 0 without it)."""
+    tol = cfg.corrections.match_frames
+    theirs = [
+        p
+        for p in punches
+        if p["person"] != a.person and a.frame_start - tol <= p["peak"] <= a.frame_end + tol
+    ]
+    if not theirs:
+        return f"no punch of the opponent with its strike in frames {a.frame_start - tol}–{a.frame_end + tol} to {a.event}"
+    ref = a.frame if a.frame is not None else (a.frame_start + a.frame_end) // 2
+    punch = min(theirs, key=lambda p: abs(p["peak"] - ref))
+    peak = a.frame if a.frame is not None else int(np.clip(punch["peak"], a.frame_start, a.frame_end))
+    displacement = 0.0
+    rows = np.searchsorted(frames, [punch["start"], peak])
+    if me.opponent is not None and rows[1] < frames.size and frames[rows[1]] == peak and rows[0] < frames.size:
+        displacement = blocks.deflection_at(
+            me.opponent, punch["hand"], me.body, int(rows[0]), int(rows[1]), cfg
+        )
+    return {"person": a.person, "kind": a.event, "start": a.frame_start, "peak": peak, "end": a.frame_end,
+            "displacement": displacement, "punch": punch, "source": "annotator"}  # fmt: skip
+
+
 def _add_clinch(clinches: list[dict[str, Any]], first: int, last: int) -> None:
     """Add ``[first, last]``, merged with the clinches it overlaps or touches."""
     touching = [c for c in clinches if c["start"] <= last + 1 and first <= c["end"] + 1]
@@ -268,7 +295,12 @@ def _apply(a: Annotation, punches: list[dict[str, Any]], evades: list[dict[str, 
     if a.event == "clinch":
         _add_clinch(clinches, a.frame_start, a.frame_end)
         return ""
-    new = _punch_of(a, me, frames, cfg) if a.event == "punch" else _evade_of(a, me, frames, punches, tol)
+    if a.event == "punch":
+        new = _punch_of(a, me, frames, cfg)
+    elif a.event in ("block", "parry"):
+        new = _guard_of(a, me, frames, punches, cfg)
+    else:
+        new = _evade_of(a, me, frames, punches, tol)
     if isinstance(new, str):
         return new
     (punches if a.event == "punch" else evades).append(new)
@@ -281,7 +313,7 @@ def apply_corrections(events: BoutEvents, edits: Sequence[Annotation], athletes:
 
     ``athletes``: person id -> 3D body on the analysed ``frames`` (video frame indices, strictly
     increasing), used to measure added events. Corrected punches get source ``"corrected"``, added
-    events ``"annotator"``; deleting a punch deletes the evasions of it. Never raises on an edit
+    events ``"annotator"``; deleting a punch deletes the defence against it. Never raises on an edit
     that is invalid or whose event is missing: it is listed in the report's ``unmatched`` with
     the reason.
     """

@@ -2,8 +2,8 @@
 
 A readable chain: the athletes' joint tracks (``body``) -> per fist, the punches
 (``punches``) -> their type (``classify``) and outcome (``outcome``) -> the defender's
-slips and ducks and the clinches (``defence``) -> the per-frame series (``ring``,
-``workrate``).
+slips and ducks and the clinches (``defence``), blocks and parries (``blocks``) -> the
+per-frame series (``ring``, ``workrate``).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pipeline.schema.analytics import AthleteSeries, BoutEvents
 from pipeline.schema.annotations import Annotation
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import PhysicsResult
-from pipeline.stages.analyze import classify, defence, outcome, ring
+from pipeline.stages.analyze import blocks, classify, defence, outcome, ring
 from pipeline.stages.analyze.body import Body, bodies, facing_frames, opponent_of
 from pipeline.stages.analyze.config import AnalyzeConfig
 from pipeline.stages.analyze.corrections import Athlete, apply_corrections
@@ -144,6 +144,8 @@ def run(inp: AnalyzeInputs, cfg: AnalyzeConfig = AnalyzeConfig()) -> AnalyzeOutp
     width = np.zeros((n_f, n_p))
     guard = np.zeros((n_f, n_p, 2))
     valid = np.zeros((n_f, n_p), dtype=bool)
+    position = np.zeros((n_f, n_p, 2))
+    position_ok = np.zeros((n_f, n_p), dtype=bool)
     punches: list[_Punch] = []
     clinch = np.zeros(n_f, dtype=bool)
     dist, dist_ok = np.zeros(n_f), np.zeros(n_f, dtype=bool)
@@ -155,6 +157,8 @@ def run(inp: AnalyzeInputs, cfg: AnalyzeConfig = AnalyzeConfig()) -> AnalyzeOutp
         stance[:, i], width[:, i] = ring.stance(me, R, r_ok, cfg.ring)
         guard[:, i] = ring.guard_height(me, cfg.ring)
         valid[:, i] = me.ok[:, [kp.joint_names.index(j) for j in REQUIRED_JOINTS]].all(axis=1)
+        hip, position_ok[:, i] = me.point("mid:left_hip+right_hip")
+        position[:, i] = np.where(position_ok[:, i, None], hip[:, :2], 0.0)
         raw = _raw_wrists(inp.raw, kp, me.person_id)
         punches += _punches_of(me, opps[i], R, r_ok, stance[:, i], cfg, inp.physics, frames, clinch, raw)
     punches.sort(key=lambda p: (p.peak, p.person))
@@ -167,6 +171,14 @@ def run(inp: AnalyzeInputs, cfg: AnalyzeConfig = AnalyzeConfig()) -> AnalyzeOutp
         ev = defence.evade(opp, by_id[p.person], p.hand, p.start, p.peak, cfg.defence)
         if ev is not None:
             evades.append((opp.person_id, ev, k))
+    for k, p in enumerate(punches):
+        opp = opps[[b.person_id for b in bs].index(p.person)]
+        if opp is None or p.outcome == "landed":
+            continue
+        guard_ev = blocks.defend(by_id[p.person], opp, p.hand, p.start, p.peak, p.end, inp.physics, frames, cfg)
+        if guard_ev is not None:
+            evades.append((opp.person_id, guard_ev, k))
+    evades.sort(key=lambda e: (e[1].peak, e[0]))
     events = _events(kp, punches, evades, defence.runs(clinch))
     athletes = {b.person_id: Athlete(b, opps[i]) for i, b in enumerate(bs)}
     events, fixes = apply_corrections(events, inp.corrections, athletes, frames, cfg)
@@ -177,7 +189,7 @@ def run(inp: AnalyzeInputs, cfg: AnalyzeConfig = AnalyzeConfig()) -> AnalyzeOutp
     series = AthleteSeries(
         frame_indices=frames.astype(np.int64), fps=float(kp.fps), person_ids=kp.person_ids.astype(np.int64),
         valid=valid, distance_m=dist, distance_valid=dist_ok, stance=stance, stance_width_m=width,
-        guard_height_m=guard, punches_per_min=rate,
+        guard_height_m=guard, punches_per_min=rate, position_xy_m=position, position_valid=position_ok,
     )  # fmt: skip
     stats: dict[str, Any] = {
         "punches": events.n_punches,
@@ -186,6 +198,8 @@ def run(inp: AnalyzeInputs, cfg: AnalyzeConfig = AnalyzeConfig()) -> AnalyzeOutp
         "missed": int(np.sum(events.punch_outcome == "missed")),
         "slips": int(np.sum(events.evade_kind == "slip")),
         "ducks": int(np.sum(events.evade_kind == "duck")),
+        "blocks": int(np.sum(events.evade_kind == "block")),
+        "parries": int(np.sum(events.evade_kind == "parry")),
         "clinches": events.n_clinches,
         "clinch_frames": int(np.sum(events.clinch_end_frame - events.clinch_start_frame + 1)) if fixes.applied else int(clinch.sum()),
         "corrections_applied": fixes.applied,
