@@ -2,18 +2,21 @@
 positions and the session's names, gathered once (``load_report_data``) so that the
 rendering (``pipeline.report.html.render_report``) is a pure function of this data.
 
-Also the slicing of a bout into periods (rounds, or fixed spans when the rounds are not
-known), each summarised by ``pipeline.stages.analyze.athlete_summary``.
+Also the bout's periods (rounds, or fixed spans when the rounds are not known; sliced by
+``pipeline.stages.analyze.periods``), each summarised by ``pipeline.stages.analyze.athlete_summary``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.schema.analytics import AthleteSeries, BoutEvents
+from pipeline.stages.analyze.periods import Period, bout_periods, slice_bout
+
+__all__ = ["ATHLETE_COLORS", "Period", "ReportData", "ReportOptions", "load_report_data", "mid_hip_positions", "periods", "slice_bout"]
 
 ATHLETE_COLORS: tuple[str, ...] = ("#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#8c564b", "#e377c2")
 """Default athlete colours by person order (the viewer's red and blue corners first)."""
@@ -110,78 +113,16 @@ class ReportData:
         return ATHLETE_COLORS[self.person_ids.index(int(pid)) % len(ATHLETE_COLORS)]
 
 
-@dataclass(frozen=True)
-class Period:
-    """A span of the bout: ``label`` and its seconds from the first analysed frame [start_s, end_s)."""
-
-    label: str
-    start_s: float
-    end_s: float
-
-
 def periods(data: ReportData, options: ReportOptions) -> tuple[list[Period], str]:
-    """The summary's periods and a sentence saying where they come from."""
-    dur = data.duration_s
-    if data.rounds_s:
-        return [
-            Period(f"round {k + 1}", a, min(b, dur)) for k, (a, b) in enumerate(data.rounds_s) if a < dur
-        ], ("Rounds from the session's round times.")
-    n = max(1, int(np.ceil(dur / options.period_s - 1e-9)))
-    out = [Period(f"{_mmss(k * options.period_s)}–{_mmss(min(dur, (k + 1) * options.period_s))}",
-                  k * options.period_s, min(dur, (k + 1) * options.period_s)) for k in range(n)]  # fmt: skip
-    return out, (
+    """The summary's periods (``pipeline.stages.analyze.periods.bout_periods``) and a sentence
+    saying where they come from."""
+    spans, kind = bout_periods(data.duration_s, data.rounds_s, options.period_s)
+    if kind == "rounds":
+        return spans, "Rounds from the session's round times."
+    return spans, (
         f"The session gives no round times: the bout is split into {options.period_s:g} s periods"
-        + (" (one period: the bout is shorter)." if n == 1 else ".")
+        + (" (one period: the bout is shorter)." if len(spans) == 1 else ".")
     )
-
-
-def _mmss(t_s: float) -> str:
-    t = int(round(t_s))
-    return f"{t // 60}:{t % 60:02d}"
-
-
-def slice_bout(
-    events: BoutEvents, series: AthleteSeries, start_s: float, end_s: float
-) -> tuple[BoutEvents, AthleteSeries]:
-    """The events and series of [start_s, end_s) seconds from the first analysed frame.
-
-    A punch belongs to the span of its peak frame, a slip or duck to the span of the punch
-    it evaded, and a clinch is clipped to the span; so the spans of a bout add up to it.
-    Raises ``ValueError`` when the span holds no analysed frame."""
-    fr = series.frame_indices
-    f0 = (fr[0] if fr.size else 0) + start_s * series.fps
-    f1 = (fr[0] if fr.size else 0) + end_s * series.fps
-    rows = (fr >= f0 - 1e-6) & (fr < f1 - 1e-6)
-    if not rows.any():
-        raise ValueError(f"slice_bout: no analysed frame in [{start_s}, {end_s}) s")
-    lo, hi = int(fr[rows][0]), int(fr[rows][-1])
-    sub = replace(
-        series, frame_indices=fr[rows], valid=series.valid[rows], distance_m=series.distance_m[rows],
-        distance_valid=series.distance_valid[rows], stance=series.stance[rows], stance_width_m=series.stance_width_m[rows],
-        guard_height_m=series.guard_height_m[rows], punches_per_min=series.punches_per_min[rows],
-    )  # fmt: skip
-    keep = (events.punch_peak_frame >= lo) & (events.punch_peak_frame <= hi)
-    new_index = np.cumsum(keep) - 1
-    ev_keep = keep[events.evade_punch] if events.n_evades else np.zeros(0, bool)
-    c_start = np.maximum(events.clinch_start_frame, lo)
-    c_end = np.minimum(events.clinch_end_frame, hi)
-    c_keep = c_start <= c_end
-    ev = replace(
-        events,
-        punch_person=events.punch_person[keep], punch_hand=events.punch_hand[keep], punch_type=events.punch_type[keep],
-        punch_start_frame=events.punch_start_frame[keep], punch_peak_frame=events.punch_peak_frame[keep],
-        punch_end_frame=events.punch_end_frame[keep], punch_peak_speed_mps=events.punch_peak_speed_mps[keep],
-        punch_extension=events.punch_extension[keep], punch_target=events.punch_target[keep],
-        punch_outcome=events.punch_outcome[keep], punch_confidence=events.punch_confidence[keep],
-        punch_source=events.punch_source[keep], evade_source=events.evade_source[ev_keep],
-        clinch_source=events.clinch_source[c_keep],
-        evade_person=events.evade_person[ev_keep], evade_kind=events.evade_kind[ev_keep],
-        evade_start_frame=events.evade_start_frame[ev_keep], evade_peak_frame=events.evade_peak_frame[ev_keep],
-        evade_end_frame=events.evade_end_frame[ev_keep], evade_displacement_m=events.evade_displacement_m[ev_keep],
-        evade_punch=new_index[events.evade_punch[ev_keep]].astype(np.int64) if events.n_evades else events.evade_punch,
-        clinch_start_frame=c_start[c_keep], clinch_end_frame=c_end[c_keep],
-    )  # fmt: skip
-    return ev, sub
 
 
 def mid_hip_positions(

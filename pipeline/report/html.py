@@ -15,9 +15,11 @@ import numpy as np
 
 from pipeline.report import charts
 from pipeline.report.data import Period, ReportData, ReportOptions, periods, slice_bout
+from pipeline.report.fatigue_chart import PANELS, fatigue_chart
 from pipeline.report.svg import esc
 from pipeline.schema.analytics import OUTCOMES, PUNCH_TYPES
 from pipeline.stages.analyze.summary import athlete_summary, summarize
+from pipeline.stages.analyze.zones import CENTRE_SCALE, CORNER_RADIUS_M, RING_ZONES, ROPES_BAND_M
 
 SUMMARY_ROWS: tuple[tuple[str, str], ...] = (
     ("punches", "punches thrown"),
@@ -27,15 +29,20 @@ SUMMARY_ROWS: tuple[tuple[str, str], ...] = (
     ("landed_pct", "accuracy (landed %)"),
     ("peak_speed_max_mps", "peak glove speed, max (m/s)"),
     ("peak_speed_mean_mps", "peak glove speed, mean (m/s)"),
+    ("peak_speed_median_mps", "peak glove speed, median (m/s)"),
     ("punches_per_min", "work rate (punches / min)"),
     ("slips", "slips"),
     ("ducks", "ducks"),
+    ("blocks", "blocks"),
+    ("parries", "parries"),
     ("clinch_s", "clinch time (s)"),
     ("stance", "stance"),
     ("orthodox_pct", "orthodox (% of frames)"),
     ("stance_width_mean_m", "stance width, mean (m)"),
     ("guard_height_mean_m", "gloves above chin, mean (m)"),
+    ("guard_height_median_m", "gloves above chin, median (m)"),
     ("distance_mean_m", "distance to opponent, mean (m)"),
+    *((f"ring_{z}_pct", f"ring: {z} (% of time)") for z in RING_ZONES),
 )
 """Summary keys (``pipeline.stages.analyze.summary``) and their labels, in table order."""
 
@@ -132,6 +139,20 @@ def _period_table(
     return f'<table class="periods" data-athlete="{pid}"><tr><th></th>{heads}</tr>{"".join(rows)}</table>'
 
 
+def _fatigue_table(athlete: dict[str, Any]) -> str:
+    """Rows: the fatigue indicators; columns: the periods, then the trend per minute and its sign."""
+    per = athlete["by_period"]
+    heads = "".join(f"<th>{esc(p['label'])}</th>" for p in per) + "<th>trend / min</th><th>trend</th>"
+    rows = []
+    for key, label in PANELS.items():
+        cells = "".join(f'<td data-key="{key}" data-period="{k}">{_cell(p.get(key))}</td>' for k, p in enumerate(per))
+        t = athlete["fatigue"][key]
+        slope = "—" if t["slope_per_min"] is None else f"{t['slope_per_min']:+g}"
+        cells += f'<td data-key="{key}" data-period="slope">{slope}</td><td data-key="{key}" data-period="trend">{esc(t["trend"])}</td>'
+        rows.append(f"<tr><td>{esc(label)}</td>{cells}</tr>")
+    return f'<table class="fatigue" data-athlete="{athlete["person_id"]}"><tr><th></th>{heads}</tr>{"".join(rows)}</table>'
+
+
 def _meta(data: ReportData) -> str:
     dur = data.duration_s
     who = " vs ".join(_athlete_head(data, p) for p in data.person_ids) or "no athletes"
@@ -144,8 +165,8 @@ def _meta(data: ReportData) -> str:
     if data.analysed_unix_s > 0:
         when = dt.datetime.fromtimestamp(data.analysed_unix_s, dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
         parts.append(f"<b>Analysed:</b> {when}")
-    parts.append(f"<b>Punches:</b> {data.events.n_punches} · <b>slips/ducks:</b> {data.events.n_evades} · "
-                 f"<b>clinches:</b> {data.events.n_clinches}")  # fmt: skip
+    parts.append(f"<b>Punches:</b> {data.events.n_punches} · <b>defence (slips, ducks, blocks, parries):</b> "
+                 f"{data.events.n_evades} · <b>clinches:</b> {data.events.n_clinches}")  # fmt: skip
     return '<div class="meta">' + " · ".join(parts[:3]) + "<br>" + " · ".join(parts[3:]) + "</div>"
 
 
@@ -159,17 +180,19 @@ def _figures(items: list[tuple[str, str]]) -> str:
 
 def render_report(data: ReportData, options: ReportOptions | None = None) -> str:
     """The bout report as one HTML document (UTF-8 text): title and facts, the summary per
-    athlete, punches by type, the summary per round (or per ``period_s``), punch maps,
-    ring-position heatmaps, peak-speed histograms and the work-rate timeline."""
+    athlete (with blocks, parries and ring zones), punches by type, the summary per round (or
+    per ``period_s``), the fatigue indicators (table and chart), punch maps, ring-position
+    heatmaps, peak-speed histograms and the work-rate timeline."""
     options = options or ReportOptions()
-    summary = summarize(data.events, data.series, data.names)
+    summary = summarize(data.events, data.series, data.names, ring_xy_m=data.ring_xy_m, rounds_s=data.rounds_s,
+                        period_s=options.period_s)  # fmt: skip
     pids = data.person_ids
     spans, spans_note = periods(data, options)
     per: dict[int, list[tuple[Period, dict[str, Any]]]] = {p: [] for p in pids}
     for span in spans:
         ev, se = slice_bout(data.events, data.series, span.start_s, span.end_s)
         for p in pids:
-            per[p].append((span, athlete_summary(ev, se, p)))
+            per[p].append((span, athlete_summary(ev, se, p, data.ring_xy_m)))
     whole = {a["person_id"]: a for a in summary["athletes"]}
     ring_note = ("The ring outline comes from the session." if data.ring_xy_m is not None else
                  "The session does not give the ring: the dashed box is the extent of both athletes' positions.")  # fmt: skip
@@ -178,15 +201,30 @@ def render_report(data: ReportData, options: ReportOptions | None = None) -> str
          + "".join(f"<h3>{_athlete_head(data, p)}: punches by type</h3>{_type_table(data, p)}" for p in pids)
          + '<p class="note">Accuracy = landed / thrown. Landed: the glove reaches the head or trunk; blocked: it stops on '
            "the gloves or arms; missed: neither. Peak glove speed is the wrist's, in the world frame. Clinch time is "
-           "shared by both athletes.</p>"),
+           "shared by both athletes. Blocks and parries are the defender's: a block = the punch's glove stops on his "
+           "glove or forearm; a parry = his glove, moving across the punch's line, meets the punching arm and deflects "
+           "the glove sideways.</p>"),
         ("rounds", "By round", f'<p class="note">{esc(spans_note)}</p>'
          + "".join(f"<h3>{_athlete_head(data, p)}</h3>{_period_table(data, p, per[p], whole[p])}" for p in pids)),
+        ("fatigue", "Fatigue indicators", f'<p class="note">{esc(spans_note)}</p>'
+         + "".join(f"<h3>{_athlete_head(data, p)}</h3>{_fatigue_table(whole[p])}" + _figures([(
+             "per period, with the least-squares trend", fatigue_chart(whole[p], data.name_of(p), data.color_of(p), p))])
+             for p in pids)
+         + '<p class="note">Per period: the median of the punches&#39; peak glove speeds, the median height of the gloves '
+           "above the chin (mean of both gloves per frame), and punches per minute. Trend: the least-squares slope of "
+           "the period values against the periods' middles, per minute; rising, falling, or flat when it rounds to 0 "
+           "(unknown with fewer than two periods holding a value).</p>"),
         ("punch-maps", "Punch maps", _figures([(f"{data.name_of(p)} → {charts.opponent_name(data, p)}", charts.punch_map(data, p)) for p in pids])
          + '<p class="note">Front view of the opponent as the puncher sees him. One dot per punch that ended near a region '
            "(head, body, or guard = gloves and forearms), coloured by outcome. The region is measured; the dot's place "
            "inside it is schematic: the side is the punching hand's (left hand on the figure's left).</p>"),
         ("ring", "Ring position", _figures([(data.name_of(p), charts.ring_heatmap(data, p, options)) for p in pids])
-         + f'<p class="note">Top view, world frame (metres), mid-hip position; darker = more time. {esc(ring_note)}</p>'),
+         + f'<p class="note">Top view, world frame (metres), mid-hip position; darker = more time. {esc(ring_note)} '
+           f"Ring zones (summary rows, mid-hip position, first match wins): corners = within {CORNER_RADIUS_M:g} m of a "
+           f"corner; ropes = within {ROPES_BAND_M:g} m of a side; centre = inside the ring scaled by {CENTRE_SCALE:g} about "
+           "its middle (for a square ring: the square of half its half-width); midring = the rest of the ring; outside = "
+           "beyond the ropes and those bands. Boundaries belong to the zone they bound. Without the ring in the session "
+           "the zones are not measured (—).</p>"),
         ("speeds", "Speed distributions", _figures([(data.name_of(p), charts.speed_histogram(data, p, options)) for p in pids])
          + f'<p class="note">Punches per {options.speed_bin_mps:g} m/s of peak glove speed, stacked by outcome; dashed: the mean.</p>'),
         ("work-rate", "Work rate", _figures([("punches over time", charts.work_rate_timeline(data, options))])

@@ -134,7 +134,7 @@ def test_charts_have_one_mark_per_event_and_labelled_axes(
     ev, opts = out.events, ReportOptions()
     html = render_report(data, opts)
     root = parse(html)
-    assert len(svgs(html)) == 3 * 2 + 1  # every chart is well-formed XML
+    assert len(svgs(html)) == 4 * 2 + 1  # every chart is well-formed XML
     for kind in ("punch-map", "ring-heatmap", "speed-histogram"):
         assert sorted(c.attrs["data-athlete"] for c in _charts(root, kind)) == ["0", "1"], kind
     assert len(_charts(root, "work-rate")) == 1
@@ -215,6 +215,7 @@ def test_self_contained_and_printable(bout: tuple[Path, AnalyzeOutput, ReportDat
     assert [s.attrs["id"] for s in sections] == [
         "summary",
         "rounds",
+        "fatigue",
         "punch-maps",
         "ring",
         "speeds",
@@ -266,7 +267,7 @@ def test_cli_report_on_a_session_the_runner_analysed(tmp_path: Path) -> None:
     assert r.exit_code == 0, r.output
     html = (tmp_path / "r.html").read_text()
     root = parse(html)
-    assert len(svgs(html)) == 7 and "tiny — bout report" in html
+    assert len(svgs(html)) == 9 and "tiny — bout report" in html
     data = load_report_data(s)
     assert data.source == "filtered" and data.positions_valid is not None and data.positions_valid.any()
     rate = _marks(_charts(root, "work-rate")[0])

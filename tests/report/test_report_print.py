@@ -53,10 +53,10 @@ def test_report_prints_to_a_multi_page_a4_pdf(tmp_path: Path) -> None:
             browser.close()
     (out_dir / "report.pdf").write_bytes(pdf)
     assert requests == [], requests  # self-contained: nothing fetched
-    assert n_charts == 7 and all(w > 100 for w in widths), widths
+    assert n_charts == 9 and all(w > 100 for w in widths), widths
     assert pdf.startswith(b"%PDF")
     pages = re.findall(rb"/Type\s*/Page\b(?!s)", pdf)
-    assert len(pages) >= 6, len(pages)  # one section per page at least (six sections)
+    assert len(pages) >= 7, len(pages)  # one section per page at least (seven sections)
     boxes = [
         tuple(float(v) for v in m.split())
         for m in re.findall(rb"/MediaBox\s*\[\s*0 0 ([\d.]+ [\d.]+)\s*\]", pdf)

@@ -41,7 +41,7 @@ def test_report_page(client: TestClient, tokens: dict, bout_folder: Path) -> Non
             0
         ]
         assert number(cell.text) == a["punches"] and a["name"] in r.text
-    assert len(svgs(r.text)) == 7
+    assert len(svgs(r.text)) == 9
     r = client.get(url, params={"period_s": 3, "bin_s": 2}, headers=auth(tokens["coach"]))
     assert r.status_code == 200 and "split into 3 s periods" in r.text and 'data-t1="12"' in r.text
     assert client.get(url, params={"period_s": 0}, headers=auth(tokens["coach"])).status_code == 422
