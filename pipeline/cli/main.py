@@ -326,9 +326,11 @@ def analyze(
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
 ) -> None:
     """Print the per-athlete boxing summary: punches by type and outcome, speeds, work rate,
-    slips and ducks, clinch time, stance, guard and distance."""
+    slips, ducks, blocks and parries, clinch time, stance, guard, distance, time at the ring's
+    centre, ropes and corners (when session.json gives the ring), and the fatigue indicators
+    per round (or minute) with their trends."""
     _setup_logging(verbose)
-    from pipeline.cli.analytics import summary_table
+    from pipeline.cli.analytics import fatigue_table, summary_table
     from pipeline.io.events_export import load_analytics
     from pipeline.schema import SessionConfig
     from pipeline.stages.analyze import summarize
@@ -344,9 +346,11 @@ def analyze(
     except (ValueError, LookupError) as e:
         _fail(str(e))
         return
-    summary = summarize(ev, series, {i: n for i, n in enumerate(cfg.athletes)})
+    summary = summarize(ev, series, {i: n for i, n in enumerate(cfg.athletes)},
+                        ring_xy_m=cfg.ring_xy_m or None, rounds_s=cfg.rounds_s)  # fmt: skip
     summary["source"] = source
     console.print(summary_table(summary, f"{cfg.name or session}: boxing summary ({source})"))
+    console.print(fatigue_table(summary, f"fatigue indicators per {'round' if summary['period_kind'] == 'rounds' else 'minute'}"))
     if json_out is not None:
         json_out.write_text(json.dumps(summary, indent=1))
         console.print(f"summary written to {json_out}")

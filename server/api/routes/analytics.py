@@ -1,5 +1,6 @@
-"""Routes: analytics: the bout's events (punches, slips and ducks, clinches) and the
-per-athlete summary, from the analyze stage's artifacts."""
+"""Routes: analytics: the bout's events (punches, slips, ducks, blocks and parries, clinches)
+and the per-athlete summary, from the analyze stage's artifacts (and ``session.json``'s ring
+and round times)."""
 
 from __future__ import annotations
 
@@ -35,7 +36,8 @@ def events(
     session_id: int,
     format: Annotated[Literal["json", "csv"], Query(description="json (the README's format) or csv")] = "json",
 ) -> dict[str, Any] | Response:
-    """Punches (type, hand, frames, peak speed, target, outcome), slips and ducks, clinches."""
+    """Punches (type, hand, frames, peak speed, target, outcome), defence (slips, ducks, blocks,
+    parries; ``evades``), clinches."""
     from pipeline.io.events_export import events_to_csv, events_to_json
 
     ev, _, source, names = _load(db, session_id)
@@ -47,8 +49,15 @@ def events(
 
 @router.get("/summary")
 def summary(db: SessionDep, _: CurrentUser, session_id: int) -> dict[str, Any]:
-    """Per-athlete summary: punches by type and outcome, speeds, work rate, defence, stance, guard, distance."""
+    """Per-athlete summary: punches by type and outcome, speeds, work rate, defence (slips,
+    ducks, blocks, parries), stance, guard, distance, time in the ring zones (when session.json
+    gives the ring), and per round (or minute) the fatigue indicators with their trends."""
+    from pipeline.schema import SessionConfig
     from pipeline.stages.analyze.summary import summarize
 
     ev, series, source, names = _load(db, session_id)
-    return {**summarize(ev, series, names), "source": source}
+    try:
+        cfg = SessionConfig.load(bout_dir(get_bout_or_404(db, session_id)))
+    except ValueError as e:  # a session.json edited by hand into an invalid one
+        raise HTTPException(status_code=status.HTTP_409_CONFLICT, detail=str(e)) from e
+    return {**summarize(ev, series, names, ring_xy_m=cfg.ring_xy_m or None, rounds_s=cfg.rounds_s), "source": source}
