@@ -9,7 +9,8 @@ the raw triangulation for the glove speeds, as the analyze step does (the physic
 is left out: minutes per bout). Scores (``pipeline.bench.analytics_score``):
 punch precision / recall (strikes matched within 3 frames, same athlete and hand), type
 and outcome accuracy among the matched, peak-speed error, clinch-frame F1, and the
-feints taken for punches. Rows per camera count sum the seeds; ``source="gt"`` adds rows
+feints taken for punches, and the blocks' precision / recall (the defender's ``block``
+events against the choreography's blocked punches). Rows per camera count sum the seeds; ``source="gt"`` adds rows
 on the ground-truth joints (the analytics alone) and ``"filtered"`` on the triangulation.
 
 A last row counts the punches found on the Pose2Sim sample (two people moving, no
@@ -38,7 +39,8 @@ HELD_OUT_SEEDS: tuple[int, ...] = (10, 11, 12)
 POSE2SIM_SESSION = "/tmp/cm/fb_def"
 """A session folder that ran the stages on the Pose2Sim multi-person sample."""
 COUNT_KEYS = ("gt_punches", "detected", "matched", "type_correct", "outcome_correct", "speed_err_sum",
-              "feints", "feint_hits", "clinch_tp", "clinch_gt", "clinch_pred", "frames")  # fmt: skip
+              "feints", "feint_hits", "clinch_tp", "clinch_gt", "clinch_pred", "frames",
+              "gt_blocks", "blocks_detected", "blocks_matched")  # fmt: skip
 
 
 def _fit_keypoints(bout: Any, sources: tuple[str, ...]) -> dict[str, Keypoints3D]:
@@ -158,6 +160,7 @@ def run_bench(
             {"data": f"synthetic ({src})", "cameras": n_cams, "seeds": ",".join(str(s) for s in seeds),
              "frames": tot["frames"], "gt_punches": tot["gt_punches"], "detected": tot["detected"],
              "matched": tot["matched"], **rates(tot), "feints": tot["feints"], "feint_hits": tot["feint_hits"],
+             "gt_blocks": tot["gt_blocks"],
              "false_per_min": false / minutes if minutes else float("nan")}  # fmt: skip
         )
     if pose2sim:
@@ -177,13 +180,16 @@ def print_table(rows: list[dict[str, Any]]) -> None:
         ("precision", "precision", "{:.3f}"), ("recall", "recall", "{:.3f}"),
         ("type_acc_pct", "type acc %", "{:.1f}"), ("outcome_acc_pct", "outcome acc %", "{:.1f}"),
         ("speed_err_pct", "speed err %", "{:.1f}"), ("speed_err_max_pct", "max speed err %", "{:.1f}"),
-        ("clinch_f1", "clinch F1", "{:.3f}"), ("feint_hits", "feints as punches", "{}"),
+        ("clinch_f1", "clinch F1", "{:.3f}"), ("gt_blocks", "blocks", "{}"),
+        ("block_precision", "block precision", "{:.3f}"), ("block_recall", "block recall", "{:.3f}"),
+        ("feint_hits", "feints as punches", "{}"),
         ("false_per_min", "false punches/min", "{:.1f}"),
     ]  # fmt: skip
     table = Table(
         title="bench analytics: synthetic bouts with varied combinations (GT identities), and the Pose2Sim sample",
         caption="targets: precision/recall >= 0.95, type and outcome accuracy >= 90 %, speed error <= 10 %, "
-        "clinch F1 >= 0.9, <= 1 false punch/min without punches; punches matched by strike frame +-3, same athlete and hand",
+        "clinch F1 >= 0.9, <= 1 false punch/min without punches; punches matched by strike frame +-3, same athlete and hand; "
+        "blocks: the defender's block events against the choreography's blocked punches (strikes +-3)",
     )
     for _, title, _ in cols:
         table.add_column(title, justify="right")

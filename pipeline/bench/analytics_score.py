@@ -5,6 +5,14 @@ most ``tol_frames`` apart, closest pairs first. Over the matched pairs: type acc
 outcome accuracy and the peak-speed error relative to the ground truth's. Clinches are
 scored per frame (F1 of the clinch frames). Feints are the ground truth's feints that a
 detected punch matches (false punches the choreography made on purpose).
+
+Blocks: the choreography scripts blocks (a punch aimed at the guard, the defender's glove
+moved onto its contact point; ``pipeline.synthetic.motion``) and the ground truth labels every
+punch whose glove stops on the other athlete's arms ``blocked`` (``truth.contact_outcome`` on
+the ground-truth bodies). Each such punch is a ground-truth block by the other athlete. A
+detected ``block`` event matches one when it is the same defender's and the punch it answers
+strikes within ``tol_frames`` of the ground-truth punch's strike, one-to-one, closest first.
+The ground truth has no parries (none is choreographed): they are not scored.
 """
 
 from __future__ import annotations
@@ -25,6 +33,30 @@ def match_punches(truth: BoutTruth, events: BoutEvents, tol_frames: int = 3) -> 
             if truth.punch_person[i] != events.punch_person[j] or truth.punch_hand[i] != events.punch_hand[j]:
                 continue
             d = abs(int(truth.punch_peak_frame[i]) - int(events.punch_peak_frame[j]))
+            if d <= tol_frames:
+                cands.append((d, i, j))
+    used_t: set[int] = set()
+    used_e: set[int] = set()
+    pairs = []
+    for _, i, j in sorted(cands):
+        if i not in used_t and j not in used_e:
+            used_t.add(i)
+            used_e.add(j)
+            pairs.append((i, j))
+    return sorted(pairs)
+
+
+def match_blocks(truth: BoutTruth, events: BoutEvents, tol_frames: int = 3) -> list[tuple[int, int]]:
+    """(truth punch row, event defence row) pairs: the truth punch was blocked, the event is a
+    ``block`` by the other athlete against a punch whose strike is within ``tol_frames``."""
+    gt = np.flatnonzero(truth.punch_outcome == "blocked")
+    det = np.flatnonzero(events.evade_kind == "block")
+    cands = []
+    for i in gt.tolist():
+        for j in det.tolist():
+            if events.evade_person[j] == truth.punch_person[i]:
+                continue
+            d = abs(int(truth.punch_peak_frame[i]) - int(events.punch_peak_frame[events.evade_punch[j]]))
             if d <= tol_frames:
                 cands.append((d, i, j))
     used_t: set[int] = set()
@@ -82,13 +114,17 @@ def score(truth: BoutTruth, events: BoutEvents, tol_frames: int = 3) -> dict[str
         "clinch_gt": int(truth.clinch.sum()),
         "clinch_pred": int(pred.sum()),
         "frames": int(n_f),
+        "gt_blocks": int(np.sum(truth.punch_outcome == "blocked")),
+        "blocks_detected": int(np.sum(events.evade_kind == "block")),
+        "blocks_matched": len(match_blocks(truth, events, tol_frames)),
         "confusion_type": [(str(truth.punch_type[i]), str(events.punch_type[j])) for i, j in pairs],
         "confusion_outcome": [(str(truth.punch_outcome[i]), str(events.punch_outcome[j])) for i, j in pairs],
     }
 
 
 def rates(counts: dict[str, Any]) -> dict[str, float]:
-    """Precision, recall, accuracies (%), mean speed error (%) and clinch F1 of summed counts."""
+    """Precision, recall, accuracies (%), mean speed error (%), clinch F1 and block precision /
+    recall of summed counts."""
     m = counts["matched"]
     nan = float("nan")
     cp, cg, ct = counts["clinch_pred"], counts["clinch_gt"], counts["clinch_tp"]
@@ -100,4 +136,6 @@ def rates(counts: dict[str, Any]) -> dict[str, float]:
         "speed_err_pct": 100.0 * counts["speed_err_sum"] / m if m else nan,
         "speed_err_max_pct": 100.0 * counts["speed_err_max"],
         "clinch_f1": 2 * ct / (cp + cg) if cp + cg else 1.0,
+        "block_precision": counts["blocks_matched"] / counts["blocks_detected"] if counts.get("blocks_detected") else nan,
+        "block_recall": counts["blocks_matched"] / counts["gt_blocks"] if counts.get("gt_blocks") else nan,
     }
