@@ -11,6 +11,8 @@ mujoco = pytest.importorskip("mujoco")
 
 from pipeline.backends.mujoco.ilqr import (  # noqa: E402
     ILQRConfig,
+    ILQRResult,
+    Linearisation,
     Workers,
     _candidates,
     backward_pass,
@@ -103,7 +105,7 @@ def test_optimisation_is_deterministic_and_independent_of_threads() -> None:
     cfg = ILQRConfig(max_iter=5, rel_tol=0.0, deriv_every=4)
     q0, v0 = np.array([0.3, -0.8]), np.zeros(2)
 
-    def run(threads: int) -> object:
+    def run(threads: int) -> ILQRResult:
         return optimise(model, mujoco.MjData(model), cost, q0, v0, ctrl, cfg, substeps=SUBSTEPS, threads=threads)
 
     a, b, serial = run(2), run(2), run(1)
@@ -171,9 +173,14 @@ def test_prepare_applies_the_residual_torque_of_its_formula() -> None:
 def test_plain_rollout_seconds_steps_the_scene_and_checks_shapes(monkeypatch: pytest.MonkeyPatch) -> None:
     from pipeline.backends.mujoco import timing
 
-    steps = []
+    steps: list[float] = []
     real_step = mujoco.mj_step
-    monkeypatch.setattr(timing.mujoco, "mj_step", lambda m, d: (steps.append(float(d.ctrl[0])), real_step(m, d)))
+
+    def counting_step(m: mujoco.MjModel, d: mujoco.MjData) -> None:
+        steps.append(float(d.ctrl[0]))
+        real_step(m, d)
+
+    monkeypatch.setattr(timing.mujoco, "mj_step", counting_step)
     ctrl = np.array([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
     # timestep 0.01 s at 50 fps: two MuJoCo steps per frame, each frame's control held.
     assert timing.plain_rollout_seconds(ARM_FLOOR_XML, np.zeros(2), ctrl, 50.0) > 0.0
@@ -182,3 +189,46 @@ def test_plain_rollout_seconds_steps_the_scene_and_checks_shapes(monkeypatch: py
         timing.plain_rollout_seconds(ARM_FLOOR_XML, np.zeros(3), ctrl, 50.0)
     with pytest.raises(ValueError, match="fps must be > 0"):
         timing.plain_rollout_seconds(ARM_FLOOR_XML, np.zeros(2), ctrl, 0.0)
+
+
+def _reference_backward_pass(lin: Linearisation, mu: float) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    """The Riccati recursion written out term by term (general LU solves)."""
+    H, nx, na = lin.B.shape
+    Vx, Vxx = lin.lx[H].copy(), lin.lxx[H].copy()
+    K, k, dV1, dV2 = np.zeros((H, na, nx)), np.zeros((H, na)), 0.0, 0.0
+    for t in range(H - 1, -1, -1):
+        A, B = lin.A[t], lin.B[t]
+        Qx, Qu = lin.lx[t] + A.T @ Vx, lin.lu[t] + B.T @ Vx
+        Qxx, Quu, Qux = lin.lxx[t] + A.T @ Vxx @ A, lin.luu[t] + B.T @ Vxx @ B, B.T @ Vxx @ A
+        reg = 0.5 * (Quu + Quu.T) + mu * np.eye(na)
+        if np.linalg.eigvalsh(reg).min() <= 0:
+            return None
+        k[t], K[t] = -np.linalg.solve(reg, Qu), -np.linalg.solve(reg, Qux)
+        dV1 += float(k[t] @ Qu)
+        dV2 += 0.5 * float(k[t] @ Quu @ k[t])
+        Vx = Qx + K[t].T @ Quu @ k[t] + K[t].T @ Qu + Qux.T @ k[t]
+        Vxx = Qxx + K[t].T @ Quu @ K[t] + K[t].T @ Qux + Qux.T @ K[t]
+        Vxx = 0.5 * (Vxx + Vxx.T)
+    return K, k, dV1, dV2
+
+
+def test_backward_pass_matches_the_riccati_recursion_written_out() -> None:
+    rng = np.random.default_rng(1)
+    H, nx, na = 6, 8, 3
+
+    def spd(n: int, scale: float) -> np.ndarray:
+        M = rng.normal(size=(n, n))
+        return scale * (M @ M.T) / n
+
+    lin = Linearisation(
+        A=np.eye(nx)[None] + 0.1 * rng.normal(size=(H, nx, nx)), B=0.3 * rng.normal(size=(H, nx, na)),
+        lx=rng.normal(size=(H + 1, nx)), lu=rng.normal(size=(H, na)),
+        lxx=np.stack([spd(nx, 1.0) for _ in range(H + 1)]), luu=np.stack([spd(na, 0.1) for _ in range(H)]),
+    )
+    got, want = backward_pass(lin, 1e-3), _reference_backward_pass(lin, 1e-3)
+    assert got is not None and want is not None
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_allclose(np.asarray(g), np.asarray(w), rtol=1e-9, atol=1e-12)
+    # A Q_uu that regularisation cannot make positive definite: no step.
+    bad = Linearisation(A=lin.A, B=lin.B, lx=lin.lx, lu=lin.lu, lxx=lin.lxx, luu=lin.luu - 50.0 * np.eye(na))
+    assert backward_pass(bad, 1e-3) is None and _reference_backward_pass(bad, 1e-3) is None

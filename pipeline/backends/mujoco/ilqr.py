@@ -29,6 +29,7 @@ from typing import Protocol
 
 import mujoco
 import numpy as np
+import scipy.linalg
 
 from pipeline.backends.mujoco.config import ILQRConfig
 
@@ -350,17 +351,20 @@ def backward_pass(lin: Linearisation, mu: float) -> tuple[np.ndarray, np.ndarray
         Quu = lin.luu[t] + B.T @ VB
         Qux = B.T @ VA
         try:
-            L = np.linalg.cholesky(0.5 * (Quu + Quu.T) + mu * eye)
+            chol = scipy.linalg.cho_factor(0.5 * (Quu + Quu.T) + mu * eye, lower=True, check_finite=False)
         except np.linalg.LinAlgError:
             return None
-        rhs = np.column_stack([Qu, Qux])
-        sol = np.linalg.solve(L.T, np.linalg.solve(L, rhs))
+        sol = scipy.linalg.cho_solve(chol, np.column_stack([Qu, Qux]), check_finite=False)
         k[t] = -sol[:, 0]
         K[t] = -sol[:, 1:]
+        Quu_k = Quu @ k[t]
         dV1 += float(k[t] @ Qu)
-        dV2 += 0.5 * float(k[t] @ Quu @ k[t])
-        Vx = Qx + K[t].T @ Quu @ k[t] + K[t].T @ Qu + Qux.T @ k[t]
-        Vxx = Qxx + K[t].T @ Quu @ K[t] + K[t].T @ Qux + Qux.T @ K[t]
+        dV2 += 0.5 * float(k[t] @ Quu_k)
+        # Vx = Qx + Kᵀ Quu k + Kᵀ Qu + Quxᵀ k and Vxx = Qxx + Kᵀ Quu K + Kᵀ Qux + Quxᵀ K,
+        # with the products shared (Quxᵀ K = (Kᵀ Qux)ᵀ).
+        Vx = Qx + K[t].T @ (Quu_k + Qu) + Qux.T @ k[t]
+        KtQux = K[t].T @ Qux
+        Vxx = Qxx + (K[t].T @ Quu) @ K[t] + KtQux + KtQux.T
         Vxx = 0.5 * (Vxx + Vxx.T)
     return K, k, dV1, dV2
 

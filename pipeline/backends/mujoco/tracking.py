@@ -156,6 +156,8 @@ class TrackingCost:
         self._ctrl_shift = (
             None if sch is None else sch.ctrl[:, :, self._acts] - sch.ctrl[:, :1, self._acts]
         )
+        # Per person: (qpos address of the root quaternion, root body id).
+        self._root_adr_body = [(p.qpos_adr + 3, p.root_body) for p in layout.persons]
         self._ref_cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]] = {}
         # Per-control weight of the deviation from the reference's targets: w_reg for the
         # servos, w_residual for the residual root servos (their use is to be rare).
@@ -304,12 +306,10 @@ class TrackingCost:
         self._ref_cache[key] = out
         return out
 
-    def _root_torque_parts(
-        self, qpos: np.ndarray, qvel: np.ndarray, t: int, sub: int = 0, implicit: bool = True
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def _root_torque_parts(self, qpos: np.ndarray, qvel: np.ndarray, t: int, sub: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """(explicit, implicit) residual root torques (persons, 3), world frame, N·m, at
         substep ``sub`` of frame ``t`` (the reference interpolated there when it has a
-        schedule); ``implicit=False`` leaves the implicit part at zero (``prepare``)."""
+        schedule)."""
         P = len(self.layout.persons)
         expl, impl = np.zeros((P, 3)), np.zeros((P, 3))
         if not self.residual_on:
@@ -326,8 +326,7 @@ class TrackingCost:
             # sqrt(τ·τ): what np.linalg.norm computes for a vector, without its overhead.
             n = math.sqrt(float(tau.dot(tau)))
             expl[i] = (tau if n <= self._tau_lim[i] else tau * (self._tau_lim[i] / n)) + kd_w_ref
-            if implicit:
-                impl[i] = -self._kd_rot[i] * (Rm @ qvel[p.qvel_adr + 3 : p.qvel_adr + 6])
+            impl[i] = -self._kd_rot[i] * (Rm @ qvel[p.qvel_adr + 3 : p.qvel_adr + 6])
         return expl, impl
 
     def root_torque(self, qpos: np.ndarray, qvel: np.ndarray, t: int) -> np.ndarray:
@@ -346,9 +345,21 @@ class TrackingCost:
             data.ctrl[self._acts] += self._ctrl_shift[self._t(t), k]
         if not self.residual_on:
             return
-        tau, _ = self._root_torque_parts(data.qpos, data.qvel, t, sub, implicit=False)
-        for i, p in enumerate(self.layout.persons):
-            data.xfrc_applied[p.root_body, 3:6] = tau[i]
+        # ``_root_torque_parts``' explicit part, written straight into ``xfrc_applied``
+        # (the same arithmetic; this runs at every substep of every rollout).
+        qpos, xfrc = data.qpos, data.xfrc_applied
+        R, err = np.empty(9), np.empty(3)
+        for (adr, body), kp, lim, (q_ref, kd_w_ref, ff) in zip(
+            self._root_adr_body, self._kp_rot, self._tau_lim, self._root_ref(t, sub), strict=True
+        ):
+            q = qpos[adr : adr + 4]
+            mujoco.mju_subQuat(err, q, q_ref)
+            mujoco.mju_quat2Mat(R, q)
+            tau = -kp * (R.reshape(3, 3) @ err)
+            if ff is not None:
+                tau = tau + ff
+            n = math.sqrt(float(tau.dot(tau)))
+            xfrc[body, 3:6] = (tau if n <= lim else tau * (lim / n)) + kd_w_ref
 
     def value(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, u: np.ndarray | None) -> float:
         t = self._t(t)
