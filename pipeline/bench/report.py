@@ -192,9 +192,9 @@ def _footage(rows: Sequence[Row]) -> tuple[list[Row], list[str]]:
     session = next((r for r in rows if r.get("kind") == "session"), None)
     notes = []
     if session is not None and "flag_any_pct" in session:
-        kinds = ", ".join(
-            f"{k.label} {_value(session.get(f'flag_{k.key}_pct'), '{:.0f}')} %" for k in FLAG_KINDS
-        )
+        shown = [(k, _value(session.get(f"flag_{k.key}_pct"), "{:.0f}")) for k in FLAG_KINDS]
+        # A kind the run could not raise (e.g. untrackable with an always-on residual) is left out.
+        kinds = ", ".join(f"{k.label} {v} %" for k, v in shown if v)
         notes.append(
             f"Frames flagged by the evaluate stage: {_value(session['flag_any_pct'], '{:.0f}')} % "
             f"of {session.get('flag_frames', '?')}, tracking flags {_value(session.get('flag_tracking_pct'), '{:.0f}')} % "
