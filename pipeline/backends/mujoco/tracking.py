@@ -73,14 +73,6 @@ def _skew(a: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
-def _cross_group_contacts(geom_group: np.ndarray, data: mujoco.MjData) -> list[int]:
-    if data.ncon == 0:
-        return []
-    g = data.contact.geom[: data.ncon]
-    pa, pb = geom_group[g[:, 0]], geom_group[g[:, 1]]
-    return np.flatnonzero((pa >= 0) & (pb >= 0) & (pa != pb)).tolist()
-
-
 def collision_depths(
     model: mujoco.MjModel, data: mujoco.MjData, geom_group: np.ndarray, with_jac: bool, max_dist_m: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -92,8 +84,16 @@ def collision_depths(
     Uses the contact normal n (geom1 → geom2): ∂dist/∂q = nᵀ (J_body2(p) − J_body1(p)),
     so ∂depth/∂q = −nᵀ (J_body2(p) − J_body1(p)). ``data`` must hold a forward pass.
     """
-    idx = [c for c in _cross_group_contacts(geom_group, data) if data.contact.dist[c] < max_dist_m]
-    depth = np.array([-data.contact.dist[c] for c in idx])
+    n = data.ncon
+    if n == 0:
+        idx: list[int] = []
+        depth = np.zeros(0)
+    else:
+        # Whole-array reads: indexing the contact list one contact at a time is slow.
+        g, dist = data.contact.geom[:n], data.contact.dist[:n]
+        pa, pb = geom_group[g[:, 0]], geom_group[g[:, 1]]
+        sel = np.flatnonzero((pa >= 0) & (pb >= 0) & (pa != pb) & (dist < max_dist_m))
+        idx, depth = sel.tolist(), -dist[sel]
     if not with_jac:
         return depth, None
     J = np.zeros((len(idx), model.nv))
@@ -156,6 +156,7 @@ class TrackingCost:
         self._ctrl_shift = (
             None if sch is None else sch.ctrl[:, :, self._acts] - sch.ctrl[:, :1, self._acts]
         )
+        self._ref_ctrl_acts = ref.ctrl[:, self._acts]
         # Per person: (qpos address of the root quaternion, root body id).
         self._root_adr_body = [(p.qpos_adr + 3, p.root_body) for p in layout.persons]
         self._ref_cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]] = {}
@@ -222,12 +223,12 @@ class TrackingCost:
         if fc is None or self.w.w_skate <= 0:
             return np.zeros(0), (np.zeros((0, self.model.nv)) if with_jac else None)
         rs, js = [], []
+        jac = np.zeros((3, self.model.nv))  # not self._jac: rollouts may run on threads
         for i in range(len(self.layout.persons)):
             for k in range(2):
                 if not fc[t, i, k]:
                     continue
                 for sid in self._feet[i][k]:
-                    jac = np.zeros((3, self.model.nv))  # not self._jac: rollouts may run on threads
                     mujoco.mj_jacSite(self.model, data, jac, None, int(sid))
                     J = jac[:2]
                     rs.append(J @ data.qvel)
@@ -372,7 +373,7 @@ class TrackingCost:
         rs, _ = self._skate(data, t, False)
         c += w.w_skate * float(rs @ rs)
         if u is not None:
-            du = u[self._acts] - ref.ctrl[t, self._acts]
+            du = u[self._acts] - self._ref_ctrl_acts[t]
             c += float(du @ (self._u_weight * du))
         return c
 
