@@ -6,7 +6,9 @@ ground truth plus smooth noise. The physics stage runs in multi-person and
 single-person mode on the same input, and every row (ground truth, input, physics)
 is scored with the same metrics (``pipeline.evaluate.physics_metrics``) against
 ground truth, with the ground-truth foot contacts. Physics rows add compute time,
-the real-time factor (compute seconds per second of motion, both boxers) and
+the real-time factor (compute seconds per second of motion, both boxers), the same time
+as a multiple of a plain ``mj_step`` rollout of the scene over the bout (``× mj_step``,
+``pipeline.backends.mujoco.timing``: less sensitive to the machine and its load) and
 where the time went.
 
 Penetration is reported twice. ``pen`` uses fixed capsules around the keypoints
@@ -190,6 +192,10 @@ def _run_seed(
         out = run_physics(PhysicsInputs(keypoints=kin, bodyfit=bodyfit), cfg)
         wall = time.perf_counter() - t0
         st = out.stats
+        # The yardstick: a plain mj_step rollout of the same scene over the same frames.
+        from pipeline.backends.mujoco.timing import plain_rollout_seconds
+
+        plain = plain_rollout_seconds(out.mjcf, out.result.qpos[0], out.result.ctrl[:-1], out.result.fps)
         rows.append(
             {
                 "method": f"physics ({mode}, {st['skeleton']} {st['geometry']})",
@@ -197,6 +203,8 @@ def _run_seed(
                 **physics_metrics(out.keypoints, gt, bout.foot_contact),
                 "compute_s": wall,
                 "realtime_factor": wall / motion_s,
+                "plain_step_s": plain,
+                "x_plain_step": wall / plain if plain > 0 else float("nan"),
                 "fd_s": st.get("seconds_derivatives_fd", 0.0),
                 "cost_derivs_s": st.get("seconds_derivatives_cost", 0.0),
                 "backward_s": st.get("seconds_backward", 0.0),
@@ -237,6 +245,7 @@ COLUMNS: tuple[tuple[str, str], ...] = (
     ("accel_err_mm_per_frame2", "accel err"),
     ("jerk_mm_per_frame3", "jerk"),
     ("realtime_factor", "RTF ×"),
+    ("x_plain_step", "× mj_step"),
     ("fd_s", "FD s"),
     ("backward_s", "bwd s"),
     ("rollouts_s", "rollout s"),
