@@ -64,6 +64,11 @@ class Detect2DConfig:
     """Side of the keypoint crop relative to the box's longer side."""
     upright_crops: bool = True
     """BlazePose: re-run tilted people on a crop rotated upright (hips→shoulders)."""
+    pose_flip_test: bool = False
+    """MoveNet: average each joint over the crop and its mirror image (twice the model runs)."""
+    pose_refine_scale: float = 1.3
+    """MoveNet: > 0 runs a second pass on a square crop of this many times the first pass's
+    keypoint extent (>= 1 in practice; see docs/design/pose-models.md); 0 = one pass."""
     min_keypoint_conf: float = 0.0
     """Keypoints below this confidence are marked invalid."""
     pose_nms_dist: float = 0.1
@@ -81,6 +86,8 @@ class Detect2DConfig:
     def __post_init__(self) -> None:
         if not 0.0 < self.foot_ankle_max_frac < 1.0:
             raise ValueError(f"Detect2DConfig.foot_ankle_max_frac must be in (0, 1), got {self.foot_ankle_max_frac!r}")
+        if self.pose_refine_scale < 0.0:
+            raise ValueError(f"Detect2DConfig.pose_refine_scale must be >= 0, got {self.pose_refine_scale!r}")
         if not 0.0 <= self.pose_nms_dist < 1.0:
             raise ValueError(f"Detect2DConfig.pose_nms_dist must be in [0, 1), got {self.pose_nms_dist!r}")
 
@@ -113,7 +120,13 @@ class Models:
             resolve_model(cfg.detector, cfg.models_dir),
             DetectorParams(cfg.det_score_thr, cfg.nms_iou, cfg.max_persons, (size, size), cfg.num_threads),
         )
-        params = PoseParams(crop_scale=cfg.crop_scale, upright=cfg.upright_crops, num_threads=cfg.num_threads)
+        params = PoseParams(
+            crop_scale=cfg.crop_scale,
+            upright=cfg.upright_crops,
+            num_threads=cfg.num_threads,
+            flip_test=cfg.pose_flip_test,
+            refine_scale=cfg.pose_refine_scale,
+        )
         self.pose = make_pose_estimator(pose_info.decoder, resolve_model(cfg.pose_model, cfg.models_dir), params)
         self.feet = None
         if cfg.foot_model != "none" and cfg.foot_model != cfg.pose_model:

@@ -200,3 +200,23 @@ def test_mmpose_style_estimators_map_back_to_image(kind: str) -> None:
     assert [len(m[0]) for m in many] == [1, 0, 1]
     np.testing.assert_allclose(np.concatenate([many[0][0], many[2][0]]), kp)
     np.testing.assert_array_equal(np.concatenate([many[0][2], many[2][2]]), valid)
+
+
+@pytest.mark.requires_models
+@pytest.mark.requires_data
+def test_movenet_flip_test_and_refine_pass_keep_the_pose(
+    models_dir: Path, frame_and_box: tuple[np.ndarray, np.ndarray]
+) -> None:
+    """Flip averaging and the closer second crop stay on the same person as one pass, with
+    left and right where one pass puts them (a wrong mirror map would swap 12 of 17 joints)."""
+    img, box = frame_and_box
+    h = box[0, 3] - box[0, 1]
+    path = models_dir / "movenet_lightning_int8.onnx"
+    coco = [COCO17_FEET.index(n) for n in COCO17]
+    k1, _, _ = MoveNetEstimator(path, PoseParams(num_threads=1)).estimate(img, box)
+    for params in (PoseParams(num_threads=1, flip_test=True), PoseParams(num_threads=1, refine_scale=1.3)):
+        k, c, v = MoveNetEstimator(path, params).estimate(img, box)
+        _sanity(k[0], c[0], v[0], box[0])
+        assert np.median(np.linalg.norm(k[0, coco] - k1[0, coco], axis=1)) < 0.03 * h
+        assert ((c[0, coco] >= 0) & (c[0, coco] <= 1)).all()
+

@@ -45,6 +45,11 @@ class PoseParams:
         min_presence: BlazePose only — below this pose-presence probability the crop is
             taken to hold no person and all its keypoint confidences are set to 0.
         num_threads: onnxruntime intra-op threads (0 = all cores).
+        flip_test: MoveNet only — also run the mirrored crop and average both estimates
+            per joint, weighted by confidence (left and right swapped back).
+        refine_scale: MoveNet only — when > 0, a second pass on a square crop around the
+            first pass's confident keypoints, of side ``refine_scale`` × their extent
+            (a closer crop, so more model pixels per body pixel); 0 = one pass.
     """
 
     crop_scale: float = 1.25
@@ -52,6 +57,8 @@ class PoseParams:
     upright_min_deg: float = 25.0
     min_presence: float = 0.3
     num_threads: int = 0
+    flip_test: bool = False
+    refine_scale: float = 0.0
 
 
 class PoseEstimator(Protocol):
@@ -195,6 +202,15 @@ class BlazePoseEstimator:
         return xy_out, conf_out, valid_out
 
 
+COCO17_FLIP: tuple[int, ...] = (0, 2, 1, 4, 3, 6, 5, 8, 7, 10, 9, 12, 11, 14, 13, 16, 15)
+"""COCO-17 index of each joint's mirror image (left and right swapped)."""
+
+REFINE_MIN_CONF = 0.3
+"""MoveNet refine pass: keypoints at least this confident (in [0, 1]) span the closer crop."""
+REFINE_MIN_JOINTS = 8
+"""MoveNet refine pass: fewer confident keypoints than this keep the first pass."""
+
+
 class MoveNetEstimator:
     """MoveNet SinglePose Lightning int8 (``[1,192,192,3]`` uint8 RGB → ``[1,1,17,3]`` (y, x, score))."""
 
@@ -214,14 +230,37 @@ class MoveNetEstimator:
         rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
         for i, box in enumerate(boxes):
             center, size = _square(box, self.params.crop_scale)
-            M = crop_transform(center, size, 0.0, self.size)
-            crop = cv2.warpAffine(rgb, M, (self.size, self.size), flags=cv2.INTER_LINEAR)
-            out = self.sess.run(None, {self.input_name: crop[None].astype(np.uint8)})[0].reshape(17, 3)
-            xy_crop = out[:, [1, 0]].astype(np.float64) * self.size
-            xy_out[i, _COCO17_IN_FEET] = apply_inverse(M, xy_crop)
-            conf_out[i, _COCO17_IN_FEET] = np.clip(out[:, 2], 0.0, 1.0)
+            xy, conf = self._pass(rgb, center, size)
+            if self.params.refine_scale > 0:
+                sure = conf >= REFINE_MIN_CONF
+                if sure.sum() >= REFINE_MIN_JOINTS:
+                    lo, hi = xy[sure].min(axis=0), xy[sure].max(axis=0)
+                    side = float(np.max(hi - lo)) * self.params.refine_scale
+                    if side > 0.5 * size / self.params.crop_scale:  # never zoom onto a fragment
+                        xy, conf = self._pass(rgb, 0.5 * (lo + hi), side)
+            xy_out[i, _COCO17_IN_FEET] = xy
+            conf_out[i, _COCO17_IN_FEET] = conf
             valid_out[i, _COCO17_IN_FEET] = True
         return xy_out, conf_out, valid_out
+
+    def _pass(self, rgb: np.ndarray, center: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
+        """Image keypoints (17, 2) and confidences (17,) from the square crop of side ``size`` at ``center``."""
+        M = crop_transform(center, size, 0.0, self.size)
+        crop = cv2.warpAffine(rgb, M, (self.size, self.size), flags=cv2.INTER_LINEAR)
+        out = self.sess.run(None, {self.input_name: crop[None].astype(np.uint8)})[0].reshape(17, 3)
+        xy = out[:, [1, 0]].astype(np.float64) * self.size
+        conf = np.clip(out[:, 2].astype(np.float64), 0.0, 1.0)
+        if self.params.flip_test:
+            mirrored = np.ascontiguousarray(crop[:, ::-1])
+            back = self.sess.run(None, {self.input_name: mirrored[None]})[0].reshape(17, 3)[list(COCO17_FLIP)]
+            xy_f = back[:, [1, 0]].astype(np.float64) * self.size
+            xy_f[:, 0] = (self.size - 1) - xy_f[:, 0]
+            conf_f = np.clip(back[:, 2].astype(np.float64), 0.0, 1.0)
+            w = conf + conf_f
+            safe = np.where(w > 0, w, 1.0)
+            xy = np.where((w > 0)[:, None], (xy * conf[:, None] + xy_f * conf_f[:, None]) / safe[:, None], xy)
+            conf = 0.5 * w
+        return apply_inverse(M, xy), conf
 
 
 class _MMPoseTopDown:
