@@ -185,3 +185,5 @@ def test_foot_points_come_from_the_foot_model_where_the_ankles_agree() -> None:
     assert np.array_equal(kp[0, :17], main_kp[0, :17])  # the body stays the main model's
     with pytest.raises(ValueError, match="foot_ankle_max_frac"):
         Detect2DConfig(foot_ankle_max_frac=0.0)
+    with pytest.raises(ValueError, match="pose_refine_scale"):
+        Detect2DConfig(pose_refine_scale=-1.0)
