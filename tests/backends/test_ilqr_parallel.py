@@ -51,6 +51,8 @@ class PushedTipCost(TipCost):
     """``TipCost`` with a state-dependent external force applied in ``prepare`` (like the
     physics cost's residual torque): each thread must apply it to its own data."""
 
+    thread_safe = True
+
     def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, sub: int = 0) -> None:
         data.xfrc_applied[2, :3] = [-3.0 * data.qvel[1], 0.0, 2.0 + 0.1 * t + 0.05 * sub]
 
@@ -114,6 +116,25 @@ def test_optimisation_is_deterministic_and_independent_of_threads() -> None:
         assert other.cost_history == a.cost_history
         np.testing.assert_array_equal(other.traj.qpos, a.traj.qpos)
         np.testing.assert_array_equal(other.traj.ctrl, a.traj.ctrl)
+
+
+def test_threads_by_default_only_for_a_cost_marked_thread_safe(monkeypatch: pytest.MonkeyPatch) -> None:
+    import pipeline.backends.mujoco.ilqr as ilqr
+
+    made: list[int] = []
+    real = ilqr.Workers
+
+    def recording(model: mujoco.MjModel, threads: int) -> ilqr.Workers:
+        made.append(threads)
+        return real(model, threads)
+
+    monkeypatch.setattr(ilqr, "Workers", recording)
+    monkeypatch.setattr(ilqr, "default_threads", lambda: 2)
+    model, cost, ctrl = _problem(6)
+    cfg = ILQRConfig(max_iter=1)
+    optimise(model, mujoco.MjData(model), cost, np.array([0.3, -0.8]), np.zeros(2), ctrl, cfg, substeps=SUBSTEPS)
+    optimise(model, mujoco.MjData(model), TipCost(np.zeros(3)), np.zeros(2), np.zeros(2), ctrl, cfg, substeps=SUBSTEPS)
+    assert made == [2, 1]
 
 
 def test_workers_refuse_zero_threads() -> None:

@@ -29,7 +29,6 @@ from typing import Protocol
 
 import mujoco
 import numpy as np
-import scipy.linalg
 
 from pipeline.backends.mujoco.config import ILQRConfig
 
@@ -49,6 +48,10 @@ class Cost(Protocol):
     ``data`` holds the state x_t after ``mj_forward`` (positions, contacts, site
     poses valid). ``u`` is the full ``ctrl`` vector (nu,). Derivatives are with
     respect to the tangent state (2·nv) and the full control (nu).
+
+    A cost whose ``prepare`` and ``value`` may run on several threads at once (each on its
+    own ``data``, alongside ``derivatives`` on the caller's thread) says so with a class
+    attribute ``thread_safe = True``; ``optimise`` then uses worker threads by default.
     """
 
     def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, sub: int = 0) -> None:
@@ -350,11 +353,14 @@ def backward_pass(lin: Linearisation, mu: float) -> tuple[np.ndarray, np.ndarray
         Qxx = lin.lxx[t] + A.T @ VA
         Quu = lin.luu[t] + B.T @ VB
         Qux = B.T @ VA
+        reg = 0.5 * (Quu + Quu.T) + mu * eye
         try:
-            chol = scipy.linalg.cho_factor(0.5 * (Quu + Quu.T) + mu * eye, lower=True, check_finite=False)
+            np.linalg.cholesky(reg)  # positive definite, or no step
         except np.linalg.LinAlgError:
             return None
-        sol = scipy.linalg.cho_solve(chol, np.column_stack([Qu, Qux]), check_finite=False)
+        # numpy's LAPACK, not scipy's: the stage limits numpy's BLAS threads (scipy's own
+        # OpenBLAS, loaded later, ran on every core and made this 4x slower on a loaded machine).
+        sol = np.linalg.solve(reg, np.column_stack([Qu, Qux]))
         k[t] = -sol[:, 0]
         K[t] = -sol[:, 1:]
         Quu_k = Quu @ k[t]
@@ -412,10 +418,15 @@ def optimise(
     lowers the total cost). Raises ``UnstableRollout`` if the initial rollout is unstable.
 
     ``threads``: worker threads of the finite differences and the line search (None:
-    ``cfg.rollout_threads`` if above 1, else ``default_threads()``); the result does not
-    depend on it.
+    ``cfg.rollout_threads`` if above 1, else ``default_threads()`` for a cost marked
+    ``thread_safe`` and 1 for any other); the result does not depend on it.
     """
-    n_threads = threads if threads is not None else (cfg.rollout_threads if cfg.rollout_threads > 1 else default_threads())
+    if threads is not None:
+        n_threads = threads
+    elif cfg.rollout_threads > 1:
+        n_threads = cfg.rollout_threads
+    else:
+        n_threads = default_threads() if getattr(cost, "thread_safe", False) else 1
     with Workers(model, n_threads) as workers:
         act = np.arange(model.nu) if active is None else np.asarray(active, dtype=np.int64)
         secs = {"derivatives_fd": 0.0, "derivatives_cost": 0.0, "backward": 0.0, "rollouts": 0.0}

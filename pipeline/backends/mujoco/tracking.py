@@ -109,6 +109,10 @@ def collision_depths(
 class TrackingCost:
     """Eq. 5 as a :class:`pipeline.backends.mujoco.ilqr.Cost`."""
 
+    thread_safe = True
+    """``prepare`` and ``value`` keep their scratch per call or per thread (the collision
+    probe's data), so the iLQR may roll out and differentiate on worker threads."""
+
     def __init__(
         self,
         model: mujoco.MjModel,
