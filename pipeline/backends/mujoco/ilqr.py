@@ -7,14 +7,19 @@ nominal trajectory's values).
 One iteration:
 1. *Linearise* along the nominal rollout: dynamics Jacobians A, B by finite
    differences (``mujoco.mjd_transitionFD``), every ``deriv_every`` steps with
-   linear interpolation in between; cost gradients/Gauss–Newton Hessians from the
-   ``Cost``.
+   linear interpolation in between (MuJoCo MPC's derivative skip), the knots on worker
+   threads (``Workers``); cost gradients/Gauss–Newton Hessians from the ``Cost``.
 2. *Backward pass*: Riccati recursion with Levenberg–Marquardt regularisation μ on
    Q_uu (raised ×``mu_up`` on a non-PD Q_uu or a failed line search, lowered on
    success).
 3. *Forward pass*: closed-loop rollouts u = ū + K (x ⊖ x̄) + α k for log-spaced
-   α ∈ [α_min, 1]; the lowest total cost is accepted if it is below the nominal's,
-   so the cost decreases monotonically.
+   α ∈ [α_min, 1], on the worker threads; the lowest total cost is accepted if it is
+   below the nominal's, so the cost decreases monotonically. (Not ``mujoco.rollout``:
+   it rolls out open-loop controls and neither applies the feedback per step nor the
+   cost's state-dependent inputs per substep, nor returns the warm start.)
+
+Threads change no number: each runs on its own ``MjData`` and every result is the
+serial one.
 """
 
 from __future__ import annotations
@@ -353,24 +358,18 @@ def backward_pass(lin: Linearisation, mu: float) -> tuple[np.ndarray, np.ndarray
         Qxx = lin.lxx[t] + A.T @ VA
         Quu = lin.luu[t] + B.T @ VB
         Qux = B.T @ VA
-        reg = 0.5 * (Quu + Quu.T) + mu * eye
         try:
-            np.linalg.cholesky(reg)  # positive definite, or no step
+            L = np.linalg.cholesky(0.5 * (Quu + Quu.T) + mu * eye)
         except np.linalg.LinAlgError:
             return None
-        # numpy's LAPACK, not scipy's: the stage limits numpy's BLAS threads (scipy's own
-        # OpenBLAS, loaded later, ran on every core and made this 4x slower on a loaded machine).
-        sol = np.linalg.solve(reg, np.column_stack([Qu, Qux]))
+        rhs = np.column_stack([Qu, Qux])
+        sol = np.linalg.solve(L.T, np.linalg.solve(L, rhs))
         k[t] = -sol[:, 0]
         K[t] = -sol[:, 1:]
-        Quu_k = Quu @ k[t]
         dV1 += float(k[t] @ Qu)
-        dV2 += 0.5 * float(k[t] @ Quu_k)
-        # Vx = Qx + Kᵀ Quu k + Kᵀ Qu + Quxᵀ k and Vxx = Qxx + Kᵀ Quu K + Kᵀ Qux + Quxᵀ K,
-        # with the products shared (Quxᵀ K = (Kᵀ Qux)ᵀ).
-        Vx = Qx + K[t].T @ (Quu_k + Qu) + Qux.T @ k[t]
-        KtQux = K[t].T @ Qux
-        Vxx = Qxx + (K[t].T @ Quu) @ K[t] + KtQux + KtQux.T
+        dV2 += 0.5 * float(k[t] @ Quu @ k[t])
+        Vx = Qx + K[t].T @ Quu @ k[t] + K[t].T @ Qu + Qux.T @ k[t]
+        Vxx = Qxx + K[t].T @ Quu @ K[t] + K[t].T @ Qux + Qux.T @ K[t]
         Vxx = 0.5 * (Vxx + Vxx.T)
     return K, k, dV1, dV2
 
