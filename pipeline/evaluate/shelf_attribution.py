@@ -15,6 +15,7 @@ COCO joints, so no single detection stands for them). Pure numpy.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -120,31 +121,23 @@ def attribute_wrong_parts(
     if not 0 < agree_ratio < 1:
         raise ValueError(f"attribute_wrong_parts: agree_ratio must lie in (0, 1), got {agree_ratio}")
     limb_parts = [(a, b) for _, a, b in SHELF_PARTS if a in LIMB_JOINTS and b in LIMB_JOINTS]
-    p_frame = {int(f): i for i, f in enumerate(pred.frame_indices)}
     counts = dict(out=0, gt=0, unobserved=0, ambiguous=0, wrong=0)
-    for ai, actor in enumerate(score.actors):
-        g = gt.person_index(actor)
-        for fg, pm in enumerate(score.matched_person[:, ai]):
-            fp = p_frame.get(int(gt.frame_indices[fg]))
-            if pm < 0 or fp is None:
+    for g, fg, fp, pm in _matched(pred, gt, score):
+        for a, b in limb_parts:
+            ja, jb = SHELF_JOINTS.index(a), SHELF_JOINTS.index(b)
+            if not (gt.valid[fg, g, ja] and gt.valid[fg, g, jb]):
                 continue
-            for a, b in limb_parts:
-                ja, jb = SHELF_JOINTS.index(a), SHELF_JOINTS.index(b)
-                if not (gt.valid[fg, g, ja] and gt.valid[fg, g, jb]):
-                    continue
-                ga, gb = gt.xyz_m[fg, g, ja], gt.xyz_m[fg, g, jb]
-                ok = pred.valid[fp, pm, ja] and pred.valid[fp, pm, jb]
-                ea = np.linalg.norm(pred.xyz_m[fp, pm, ja] - ga)
-                eb = np.linalg.norm(pred.xyz_m[fp, pm, jb] - gb)
-                if ok and 0.5 * (ea + eb) <= alpha * np.linalg.norm(ga - gb):
-                    continue
-                counts["wrong"] += 1
-                j = ja if (not pred.valid[fp, pm, jb] or ea >= eb) else jb
-                counts[
-                    _side(
-                        pred.xyz_m[fp, pm, j], gt.xyz_m[fg, g, j], observed_px[fp, pm, :, j], rig, agree_ratio
-                    )
-                ] += 1
+            ga, gb = gt.xyz_m[fg, g, ja], gt.xyz_m[fg, g, jb]
+            ok = pred.valid[fp, pm, ja] and pred.valid[fp, pm, jb]
+            ea = np.linalg.norm(pred.xyz_m[fp, pm, ja] - ga)
+            eb = np.linalg.norm(pred.xyz_m[fp, pm, jb] - gb)
+            if ok and 0.5 * (ea + eb) <= alpha * np.linalg.norm(ga - gb):
+                continue
+            counts["wrong"] += 1
+            j = ja if (not pred.valid[fp, pm, jb] or ea >= eb) else jb
+            counts[
+                _side(pred.xyz_m[fp, pm, j], gt.xyz_m[fg, g, j], observed_px[fp, pm, :, j], rig, agree_ratio)
+            ] += 1
     return WrongPartAttribution(
         wrong_parts=counts["wrong"],
         detections_agree_output=counts["out"],
@@ -152,6 +145,18 @@ def attribute_wrong_parts(
         unobserved=counts["unobserved"],
         ambiguous=counts["ambiguous"],
     )
+
+
+def _matched(pred: Keypoints3D, gt: Keypoints3D, score: ShelfScore) -> Iterator[tuple[int, int, int, int]]:
+    """(ground-truth person index, ground-truth frame, prediction frame, predicted person) of
+    every actor-frame the score matched to a predicted person."""
+    p_frame = {int(f): i for i, f in enumerate(pred.frame_indices)}
+    for ai, actor in enumerate(score.actors):
+        g = gt.person_index(actor)
+        for fg, pm in enumerate(score.matched_person[:, ai]):
+            fp = p_frame.get(int(gt.frame_indices[fg]))
+            if pm >= 0 and fp is not None:
+                yield g, fg, fp, int(pm)
 
 
 def _side(ours: np.ndarray, truth: np.ndarray, obs: np.ndarray, rig: CameraRig, ratio: float) -> str:
@@ -173,15 +178,9 @@ def hip_height_offset_mm(pred: Keypoints3D, gt: Keypoints3D, score: ShelfScore) 
     """Median height (mm, z up) of the output's hips above the ground truth's, over matched
     actor-frames: the part of MPJPE that comes from where COCO and Shelf put the hip."""
     hips = [SHELF_JOINTS.index("right_hip"), SHELF_JOINTS.index("left_hip")]
-    p_frame = {int(f): i for i, f in enumerate(pred.frame_indices)}
     dz: list[float] = []
-    for ai, actor in enumerate(score.actors):
-        g = gt.person_index(actor)
-        for fg, pm in enumerate(score.matched_person[:, ai]):
-            fp = p_frame.get(int(gt.frame_indices[fg]))
-            if pm < 0 or fp is None:
-                continue
-            for j in hips:
-                if gt.valid[fg, g, j] and pred.valid[fp, pm, j]:
-                    dz.append(float(pred.xyz_m[fp, pm, j, 2] - gt.xyz_m[fg, g, j, 2]))
+    for g, fg, fp, pm in _matched(pred, gt, score):
+        for j in hips:
+            if gt.valid[fg, g, j] and pred.valid[fp, pm, j]:
+                dz.append(float(pred.xyz_m[fp, pm, j, 2] - gt.xyz_m[fg, g, j, 2]))
     return 1000.0 * float(np.median(dz)) if dz else float("nan")
