@@ -14,15 +14,19 @@ events against the choreography's blocked punches). Rows per camera count sum th
 on the ground-truth joints (the analytics alone) and ``"filtered"`` on the triangulation.
 
 A last row counts the punches found on the Pose2Sim sample (two people moving, no
-punches): its fit (else physics, else filtered) keypoints of a session that ran on it
-(``pose2sim_session``, read only), as false punches per minute.
+punches) as false punches per minute: the analytics on the fit (else physics, else
+filtered) keypoints of the session ``cornerman bench footage`` runs on it (its folder in the
+system temp dir; created, and its stages run up to the fit, when missing or stale;
+``pose2sim_session``), or of a session folder given as ``pose2sim`` (read as it is). The row
+is skipped, with the reason logged, when the shared data or the 2D models are absent.
 
-The thresholds were tuned on seeds 0-3 (``TUNING_SEEDS``); the default seeds are others.
+The thresholds were tuned on seeds 0-7 (``TUNING_SEEDS``); the default seeds are others.
 """
 
 from __future__ import annotations
 
 import logging
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -32,12 +36,16 @@ from pipeline.schema.keypoints3d import Keypoints3D
 
 log = logging.getLogger(__name__)
 
-TUNING_SEEDS: tuple[int, ...] = (0, 1, 2, 3)
+TUNING_SEEDS: tuple[int, ...] = (0, 1, 2, 3, 4, 5, 6, 7)
 """Seeds the analytics' thresholds were tuned on."""
 HELD_OUT_SEEDS: tuple[int, ...] = (10, 11, 12)
 """The default seeds: never looked at while tuning."""
-POSE2SIM_SESSION = "/tmp/cm/fb_def"
-"""A session folder that ran the stages on the Pose2Sim multi-person sample."""
+FOOTAGE = "footage"
+"""``pose2sim`` value: the session of ``cornerman bench footage`` (``pose2sim_session``)."""
+FOOTAGE_DIR_NAME = "cornerman_bench_footage"
+"""Name of ``bench footage``'s default work_dir in the system temp dir (``footage.run_bench``)."""
+POSE2SIM_STAGE = "fit"
+"""The Pose2Sim row needs the stages up to this one (physics is left out, as for the synthetic rows)."""
 COUNT_KEYS = ("gt_punches", "detected", "matched", "type_correct", "outcome_correct", "speed_err_sum",
               "feints", "feint_hits", "clinch_tp", "clinch_gt", "clinch_pred", "frames",
               "gt_blocks", "blocks_detected", "blocks_matched")  # fmt: skip
@@ -74,30 +82,95 @@ def _cached(cache: Path | None, key: str, make: Any) -> Keypoints3D:
     return kp
 
 
-def pose2sim_row(session_dir: str = POSE2SIM_SESSION) -> dict[str, Any] | None:
-    """Punches found on a session's 3D result (fit, else physics, else filtered); None
-    when the session is not there."""
+def footage_work_dir() -> Path:
+    """The folder ``cornerman bench footage`` runs the Pose2Sim sample in by default."""
+    return Path(tempfile.gettempdir()) / FOOTAGE_DIR_NAME
+
+
+def _missing_models(folder: Path) -> list[str]:
+    """Registry names of the 2D models the session in ``folder`` needs and cannot find."""
+    from pipeline.registry.download import find_model
+    from pipeline.runner import get_specs
+    from pipeline.runner.core import resolve_config
+    from pipeline.schema.session import SessionConfig
+
+    session = SessionConfig.load(folder)
+    cfg = resolve_config(get_specs()["detect2d"], session)
+    models_dir = cfg.models_dir
+    if models_dir and not Path(models_dir).is_absolute():
+        models_dir = str(folder / models_dir)
+    names = [cfg.detector, cfg.pose_model] + ([cfg.foot_model] if cfg.foot_model != "none" else [])
+    return [n for n in names if find_model(n, models_dir) is None]
+
+
+def pose2sim_session(pose2sim: str = FOOTAGE) -> tuple[Path | None, str]:
+    """(session folder, "") of the Pose2Sim row, or (None, why it is skipped).
+
+    ``pose2sim``: ``"footage"`` = the ``bench footage`` folder (``footage_work_dir``): created
+    when missing (``footage.footage_session`` of the shared sample), its missing or stale stages
+    run up to ``POSE2SIM_STAGE``, reusing the session.json found there; skipped when the shared
+    data, or the 2D models a stage to run needs, are absent. Any other value is a session folder
+    read as it is. ``ValueError`` when that folder holds no session, or when the footage folder
+    holds another bench's session or other files (nothing there is overwritten)."""
+    from pipeline.bench import footage
+    from pipeline.runner import run, stage_status
+    from pipeline.schema.session import SessionConfig
+    from pipeline.shared import dataset_dir
+
+    if pose2sim != FOOTAGE:
+        path = Path(pose2sim).expanduser()
+        if not (path / "session.json").is_file():
+            raise ValueError(f"bench analytics: pose2sim={pose2sim!r}: no session.json in {path}")
+        return path, ""
+    folder = footage_work_dir()
+    try:
+        data = dataset_dir(footage.DATASET)
+    except ValueError as e:
+        return None, f"the Pose2Sim sample is absent: {e}"
+    if not (folder / "session.json").is_file():
+        footage.prepare_work_dir(folder, footage.footage_session(data), fresh=False)
+    elif (name := SessionConfig.load(folder).name) != footage.SESSION_NAME:
+        raise ValueError(f"bench analytics: {folder} holds session {name!r}, not bench footage's; move it away")
+    status = stage_status(folder)
+    todo = [s for s, st in status.items() if st != "fresh"]
+    to_stage = POSE2SIM_STAGE if POSE2SIM_STAGE in status else "triangulate"
+    order = list(status)
+    todo = [s for s in todo if to_stage in order and order.index(s) <= order.index(to_stage)]
+    if todo:
+        if "detect2d" in todo and (missing := _missing_models(folder)):
+            return None, f"the 2D models {missing} are absent (`cornerman models list` says where they are looked for)"
+        log.info("bench analytics: running %s in %s (missing or stale)", ", ".join(todo), folder)
+        run(folder, to_stage=to_stage)
+    return folder, ""
+
+
+def pose2sim_row(session_dir: str | Path) -> dict[str, Any] | None:
+    """Punches found on a session's 3D result (fit, else physics, else filtered; speeds from its
+    raw triangulation); None when it has none of them."""
     from pipeline.artifacts import ArtifactStore
+    from pipeline.io.session_rig import session_rig
+    from pipeline.schema.session import SessionConfig
     from pipeline.schema.sources import RESULT_ARTIFACTS
     from pipeline.stages.analyze import AnalyzeInputs
     from pipeline.stages.analyze import run as analyze
 
-    path = Path(session_dir)
-    if not (path / "session.json").exists():
-        log.warning("bench analytics: no session at %s; Pose2Sim row skipped", path)
-        return None
-    store = ArtifactStore(path)
+    store = ArtifactStore(Path(session_dir))
+    raw_stage, raw_art = RESULT_ARTIFACTS["raw"]
+    raw = store.load(raw_stage, raw_art, Keypoints3D) if store.has(raw_stage, f"{raw_art}.npz") else None
     for name in ("fit", "physics", "filtered"):
         stage, art = RESULT_ARTIFACTS[name]
         if store.has(stage, f"{art}.npz"):
             kp = store.load(stage, art, Keypoints3D)
-            ev = analyze(AnalyzeInputs(kp)).events
+            ev = analyze(AnalyzeInputs(kp, raw=raw)).events
             minutes = kp.n_frames / kp.fps / 60.0
             return {
-                "data": f"Pose2Sim sample ({name})", "cameras": 4, "seeds": "-", "frames": kp.n_frames,
-                "detected": ev.n_punches, "false_per_min": ev.n_punches / minutes if minutes else float("nan"),
+                "data": f"Pose2Sim sample ({name})",
+                "cameras": session_rig(Path(session_dir), SessionConfig.load(Path(session_dir))).n_views,
+                "seeds": "-", "frames": kp.n_frames, "detected": ev.n_punches,
+                "false_per_min": ev.n_punches / minutes if minutes else float("nan"),
                 "clinch_frames": int(sum(int(e - s + 1) for s, e in zip(ev.clinch_start_frame, ev.clinch_end_frame, strict=True))),
             }  # fmt: skip
+    log.warning("bench analytics: %s has no fit, physics or filtered keypoints; Pose2Sim row skipped", session_dir)
     return None
 
 
@@ -107,14 +180,15 @@ def run_bench(
     cameras: list[int] | tuple[int, ...] | int = (4, 2),
     sources: str = "fit",
     cache_dir: str = "",
-    pose2sim: str = POSE2SIM_SESSION,
+    pose2sim: str = FOOTAGE,
 ) -> list[dict[str, Any]]:
     """Rows: one per (3D source, camera count) over ``seeds``, then the Pose2Sim row.
 
     ``sources``: comma-separated among ``fit``, ``filtered``, ``gt``. ``cache_dir``: keep
     the 3D results there and reuse them (for tuning; they are keyed by seed, cameras,
     frames and source only, so empty it when the generator changes). ``pose2sim``: the
-    session folder read for the last row ("" to skip it).
+    session of the last row: ``"footage"`` = ``bench footage``'s, run up to the fit when
+    missing or stale; a session folder; "" skips the row (``pose2sim_session``).
     """
     from pipeline.stages.analyze import AnalyzeInputs
     from pipeline.stages.analyze import run as analyze
@@ -126,6 +200,9 @@ def run_bench(
         raise ValueError(f"bench analytics: sources must be among fit, filtered, gt; got {sources!r}")
     cams = (cameras,) if isinstance(cameras, int) else tuple(cameras)
     cache = Path(cache_dir) if cache_dir else None
+    p2s_dir, why = pose2sim_session(pose2sim) if pose2sim else (None, "pose2sim is empty")
+    if p2s_dir is None:  # before the synthetic bouts: say it now, not after minutes
+        log.warning("bench analytics: Pose2Sim row skipped: %s", why)
     totals: dict[tuple[str, int], dict[str, Any]] = {}
     for n_cams in cams:
         for seed in seeds:
@@ -163,8 +240,8 @@ def run_bench(
              "gt_blocks": tot["gt_blocks"],
              "false_per_min": false / minutes if minutes else float("nan")}  # fmt: skip
         )
-    if pose2sim:
-        row = pose2sim_row(pose2sim)
+    if p2s_dir is not None:
+        row = pose2sim_row(p2s_dir)
         if row is not None:
             rows.append(row)
     return rows
