@@ -87,6 +87,9 @@ class ViewerApp:
         """The re-run the viewer waits for after an edit (None: every layer is up to date)."""
         self._stale_lock = threading.RLock()
         self._jobs_seen: set[int] = set()
+        self.shared: ClientView | None = None
+        """The view every client shares (``role``), else None; set before the mesh cache starts,
+        whose first chunk (read from its disk cache at once) asks every view to render."""
 
         self.data: SessionData = data if data is not None else load_session_data(self.session_dir)
         self.palette = IdentityPalette(None, self.data.config.athletes)
@@ -106,7 +109,6 @@ class ViewerApp:
         server.initial_camera.up = (0.0, 0.0, 1.0)
         for v, name in enumerate(self.data.camera_names):
             self.world.cams[name].on_click(self.aligner(v))
-        self.shared: ClientView | None = None
         if role is not None:
             self.shared = self.add_view(server, ClientUser("", role, api))
         self._watch = threading.Thread(target=self._watch_loop, name="watch", daemon=True)

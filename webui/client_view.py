@@ -5,16 +5,18 @@ client's GUI and scene (``viser.ClientHandle.gui`` / ``.scene``), or on the serv
 (every client, one shared view) in tests and scripts. Session data, camera frames, body
 meshes and physics geoms belong to the ``ViewerApp`` and are shared by every view. One
 thread per view renders its frame and advances its playback; ``close()`` (the client left)
-stops both.
+stops both. Playback keeps real time and sends less while playing (``webui.playback``).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from typing import TYPE_CHECKING, Any, cast
 
+import cv2
 import viser
 
 from webui.analysis import compute_series
@@ -49,6 +51,7 @@ from webui.panels.export import make_export, wire_export
 from webui.panels.plots import make_plots, update_plots
 from webui.panels.timeline import make_timeline, set_problems
 from webui.panels.views import make_views
+from webui.playback import PLAY_IMAGE_SCALE, PLAY_IMAGES_HZ, PLAY_MAX_HZ, PLAY_SHADOWS, PlaybackClock
 from webui.scene.persons import DisplayOptions, PersonsScene
 from webui.scope import Scope
 from webui.staleness import SOURCE_LAYER, layers_markdown
@@ -59,7 +62,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 PLAY_TICK_S = 0.02
-"""How often a playing view checks whether the next frame is due (s)."""
+"""How often a playing view checks whether the next frame is due when none was (s)."""
 
 
 class ClientView:
@@ -70,6 +73,16 @@ class ClientView:
         self.frame = 0
         self.rendered = 0
         """Frames drawn so far (tests and the bench)."""
+        self.playback = PlaybackClock(app.data.fps, max(1, app.data.n_frames))
+        """Which frame is due while playing (``webui.playback``)."""
+        self._play_frame = -1  # the frame playback set last: another one means the user scrubbed
+        self.images_shown: tuple[int, bool] | None = None
+        """(frame, full size) of the camera images sent last; None before any."""
+        self._images_at = -math.inf
+        self._images_key: tuple = ()
+        self._images_of: tuple = ()  # the palette and data those images were drawn with
+        self.shadows = True
+        """Whether this view's default lights cast shadows now (viser's default; off while playing)."""
         self._stop = threading.Event()
         self._render_wanted = threading.Event()
         self._lock = threading.RLock()  # render vs rebuild after a reload
@@ -151,37 +164,62 @@ class ClientView:
         self._render_wanted.set()
 
     def _loop(self) -> None:
-        """Render on request (latest wins) and advance the frame while Play is on, until closed."""
-        last = time.monotonic()
-        acc = 0.0
+        """Render on request (latest wins) and, while Play is on, show the frame the wall clock
+        says is due at most ``PLAY_MAX_HZ`` times per second, until closed."""
+        last_render = -math.inf
         while not self._stop.is_set():
-            playing = bool(self.timeline.play.value)
-            self._render_wanted.wait(PLAY_TICK_S if playing else 0.25)
-            if self._stop.is_set():
-                break
-            now = time.monotonic()
-            dt, last = now - last, now
-            if playing and self.timeline.play.value:  # Pause pressed during the wait: no step
-                acc += dt * self.app.data.fps * self.timeline.speed_factor
-                step = int(acc)
-                if step >= 1:
-                    acc -= step
-                    self.set_frame((self.frame + step) % self.app.data.n_frames)
+            if self.playing:
+                # Wait for the next render slot (a pause pressed meanwhile is seen right after).
+                if self._stop.wait(max(0.0, last_render + 1.0 / PLAY_MAX_HZ - time.monotonic())):
+                    break
+                if self.playing:
+                    self._advance()
+                    if not self._render_wanted.is_set():  # no new frame due yet (a slow speed)
+                        self._stop.wait(PLAY_TICK_S)
+                        continue
             else:
-                acc = 0.0
+                self.playback.stop()
+                self._render_wanted.wait(0.25)
+                if self._stop.is_set():
+                    break
+                if self.playing:  # Play pressed: start the clock before the first frame is drawn
+                    continue
             if self._render_wanted.is_set():
                 self._render_wanted.clear()
                 try:
-                    self.render(self.frame)
+                    self.render(self.frame, playing=self.playing)
                 except Exception:  # keep the viewer alive; the traceback goes to the log
                     if not self._stop.is_set():
                         log.exception("%s: rendering frame %d failed", self.name, self.frame)
+                last_render = time.monotonic()
 
-    def render(self, frame: int) -> None:
-        """Draw ``frame`` in this view: 3D persons, camera images, selection and info."""
+    def _advance(self) -> None:
+        """Move to the frame playback says is due (frames are skipped when renders are slow)."""
+        pb = self.playback
+        n = self.app.data.n_frames
+        speed = self.timeline.speed_factor
+        if pb.n_frames != max(1, n):  # a reload changed the bout's length
+            pb = self.playback = PlaybackClock(self.app.data.fps, max(1, n), pb.clock)
+        if not pb.running or pb.speed != speed or self.frame != self._play_frame:
+            pb.start(self.frame, speed)  # Play pressed, the speed changed, or the user scrubbed
+            self._play_frame = self.frame
+        due = pb.frame()
+        if due != self.frame:
+            self._play_frame = due
+            self.set_frame(due)
+
+    def render(self, frame: int, playing: bool = False) -> None:
+        """Draw ``frame`` in this view: 3D persons, camera images, selection and info.
+
+        ``playing``: the camera images go at ``PLAY_IMAGE_SCALE`` of their size and at most
+        ``PLAY_IMAGES_HZ`` times per second (skipped in between); otherwise at full size."""
         app = self.app
         with self._lock:
             data = self.persons.data
+            shadows = PLAY_SHADOWS or not playing
+            if shadows != self.shadows:
+                self.scope.scene.configure_default_lights(enabled=True, cast_shadow=shadows)
+                self.shadows = shadows
             self.persons.update(frame, self.opts)  # one atomic scene update
             sel_track = None
             if self.annotate is not None:
@@ -190,21 +228,40 @@ class ClientView:
                 sel_track = sel.track
                 names = {p: app.palette.name(p) for p in data.person_ids}
                 self.annotate.selection.content = describe_selection(data, sel, names)
-            images = app.provider.frames(frame)
-            stale = self.stale_layers
-            palette = StalePalette(app.palette) if "2D labels" in stale else app.palette
-            reproject = SOURCE_LAYER.get(self.opts.source, "") not in stale
-            for v, name in enumerate(data.camera_names):
-                img = images[v]
-                ov = overlay_for(data, v, frame, self.opts.source)
-                st = sel_track if (self.annotate is not None and self.annotate.view.value == name) else None
-                draw_overlay(img, ov, app.provider.scale(v), palette, st, show_reprojection=reproject)
-                self.views.images[name].image = img
+            now = time.monotonic()
+            if not playing or now - self._images_at >= 1.0 / PLAY_IMAGES_HZ:
+                self._draw_images(frame, sel_track, full=not playing)
+                self._images_at = now
             problems = app.problems
             kinds = problems.kinds_at(frame) if frame < problems.n_frames else []
             flag = f" — ⚠ {', '.join(kinds)}" if kinds else ""
             self.timeline.info.content = f"frame {frame} / {data.n_frames - 1} ({frame / data.fps:.2f} s){flag}"
             self.rendered += 1
+
+    def _draw_images(self, frame: int, sel_track: int | None, full: bool) -> None:
+        """Camera images of ``frame`` with their overlays (``full``: display size, else ``PLAY_IMAGE_SCALE`` of it)."""
+        app, data = self.app, self.persons.data
+        view = self.annotate.view.value if self.annotate is not None else ""
+        key = (frame, full, sel_track, view, self.opts.source, self.stale_layers)
+        of = (app.palette, data, app.provider)
+        if key == self._images_key and all(a is b for a, b in zip(of, self._images_of, strict=True)):
+            return  # the same images again: nothing to send
+        self._images_key, self._images_of = key, of
+        images = app.provider.frames(frame)
+        stale = self.stale_layers
+        palette = StalePalette(app.palette) if "2D labels" in stale else app.palette
+        reproject = SOURCE_LAYER.get(self.opts.source, "") not in stale
+        for v, name in enumerate(data.camera_names):
+            img = images[v]
+            ov = overlay_for(data, v, frame, self.opts.source)
+            st = sel_track if (self.annotate is not None and self.annotate.view.value == name) else None
+            draw_overlay(img, ov, app.provider.scale(v), palette, st, show_reprojection=reproject)
+            if not full and PLAY_IMAGE_SCALE < 1.0:
+                h, w = img.shape[:2]
+                size = (max(1, round(w * PLAY_IMAGE_SCALE)), max(1, round(h * PLAY_IMAGE_SCALE)))
+                img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+            self.views.images[name].image = img
+        self.images_shown = (frame, full)
 
     def _refresh_track_options(self, frame: int) -> None:
         assert self.annotate is not None
@@ -285,6 +342,9 @@ class ClientView:
             self.frame = int(tl.frame.value)
             follow_frame(self.events, self.frame)
             self.request_render()
+
+        # Pausing draws the exact frame again with full-size images.
+        tl.play.on_update(lambda _: self.request_render())
 
         wire_events(self.events, app.events_view, lambda: self.frame, self.set_frame, lambda: app.data.n_frames)
         wire_export(self.export, self.scope, app.session_dir,

@@ -7,7 +7,7 @@ frame change only streams new positions/vertices, batched in one ``server.atomic
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import astuple, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -90,10 +90,14 @@ class PersonsScene:
     body_cache: BodyMeshCache | None = None
     physics_geoms: Any = None
     nodes: dict[int, PersonNodes] = field(default_factory=dict)
+    shown: tuple | None = None
+    """What the nodes show now (frame, options, meshes posed so far); ``update`` sends nothing
+    when asked for the same again. None after ``build``."""
 
     def build(self) -> None:
         """(Re)create the nodes of every person (call after a reload)."""
         self.remove()
+        self.shown = None
         n_bones = max((len(bone_indices(kp.joint_names)) for kp in self.data.keypoints.values()), default=0)
         n_joints = max((len(kp.joint_names) for kp in self.data.keypoints.values()), default=1)
         for pid in self.data.person_ids:
@@ -201,7 +205,13 @@ class PersonsScene:
                 self._set_mesh_look(n, "physics", dim)
 
     def update(self, frame: int, opts: DisplayOptions) -> None:
-        """Show every person at ``frame`` (one atomic scene update)."""
+        """Show every person at ``frame`` (one atomic scene update; nothing is sent when the
+        frame, the options and the posed meshes are those shown already)."""
+        posed = self.body_cache.progress if self.body_cache is not None else None
+        key = (frame, astuple(opts), posed)  # new data, meshes or geoms come with ``build``
+        if key == self.shown:
+            return
+        self.shown = key
         kp = self.data.keypoints.get(opts.source)
         row = frame_row(kp, frame) if kp is not None else None
         with self.server.atomic():
