@@ -10,8 +10,11 @@ from collections import Counter
 from typing import Any
 
 from pipeline.dataset.annotations import annotation_counts
+from pipeline.schema.analytics import EVADE_KINDS
 
 TODO = "**TO FILL IN**"
+DEFENCE_COUNTS: dict[str, str] = {"slip": "slips", "duck": "ducks", "block": "blocks", "parry": "parries"}
+"""Row of the counts table for each defence kind (``events.json`` ``evades[].kind``)."""
 
 
 def _table(header: list[str], rows: list[list[Any]]) -> list[str]:
@@ -108,7 +111,10 @@ def datasheet(
         if ev is not None:
             totals["sessions with events"] += 1
             totals["punches"] += len(ev["punches"])
-            totals["slips and ducks"] += len(ev["evades"])
+            for kind in EVADE_KINDS:
+                totals[DEFENCE_COUNTS[kind]] += 0  # every kind gets a row, 0 included
+            for e in ev["evades"]:
+                totals[DEFENCE_COUNTS.get(e["kind"], f"defence '{e['kind']}'")] += 1
             totals["clinches"] += len(ev["clinches"])
     lines += _table(["what", "count"], [["sessions", len(metas)], *[[k, v] for k, v in totals.items()]])
     return "\n".join(lines)

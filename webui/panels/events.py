@@ -1,10 +1,11 @@
-"""Boxing events: one row of punch marks per athlete under the timeline, previous / next
-punch, and (in the Events tab) filters, the matching punches and the summary cards.
+"""Boxing events: one row of marks per athlete under the timeline, previous / next punch, and
+(in the Events tab) filters, the legend, the matching punches and defence, and the summary cards.
 
-Each athlete row is a slider over the frames whose marks are that athlete's punches
-(label: type and outcome, e.g. ``J✓``); it follows the frame slider, and moving it (or
-clicking on the row) moves the frame. viser's marks carry text only, so the outcome is a
-symbol (✓ landed, ▪ blocked, · missed) rather than a colour.
+Each athlete row is a slider over the frames whose marks are that athlete's punches (label:
+type and outcome, e.g. ``J✓``) and defence (``◇`` and the kind, e.g. ``◇Bk`` a block, at the
+defence's peak); it follows the frame slider, and moving it (or clicking on the row) moves
+the frame. viser's marks carry text only, so the outcome is a symbol (✓ landed, ▪ blocked,
+· missed) rather than a colour (``webui.events.LEGEND``).
 """
 
 from __future__ import annotations
@@ -16,8 +17,8 @@ from typing import Any
 import viser
 from viser._messages import GuiSliderMark
 
-from pipeline.schema.analytics import OUTCOMES, PUNCH_TYPES
-from webui.events import ALL, EventsView
+from pipeline.schema.analytics import EVADE_KINDS, OUTCOMES, PUNCH_TYPES
+from webui.events import ALL, LEGEND, EventsView
 from webui.scope import Scope
 
 
@@ -32,22 +33,26 @@ class EventsHandles:
     event: viser.GuiDropdownHandle[str]
     listing: viser.GuiMarkdownHandle
     summary: viser.GuiMarkdownHandle
+    legend: viser.GuiMarkdownHandle
 
 
-NO_EVENT = "(pick a punch to jump to it)"
+NO_EVENT = "(pick an event to jump to it)"
+TYPE_OPTIONS: tuple[str, ...] = (ALL, *(t.replace("_", " ") for t in PUNCH_TYPES), *EVADE_KINDS)
+"""The Type filter: every event, a punch type, or a defence kind."""
 
 
 def make_event_rows(server: Scope, athletes: list[tuple[int, str]], n_frames: int) -> tuple[
     dict[int, viser.GuiSliderHandle[int]], viser.GuiButtonHandle, viser.GuiButtonHandle
 ]:  # fmt: skip
-    """The per-athlete punch rows and the previous / next punch buttons (under the timeline)."""
+    """The per-athlete event rows and the previous / next punch buttons (under the timeline)."""
     rows = {
         pid: server.gui.add_slider(f"{name} punches", min=0, max=max(1, n_frames - 1), step=1, initial_value=0,
-                                   hint=f"{name}'s punches (✓ landed, ▪ blocked, · missed); click to jump")  # fmt: skip
+                                   hint=f"{name}'s punches and defence; click to jump. {LEGEND}")  # fmt: skip
         for pid, name in athletes
     }
-    prev = server.gui.add_button("Previous punch", hint="Jump to the previous punch matching the Events filters")
-    nxt = server.gui.add_button("Next punch", hint="Jump to the next punch matching the Events filters")
+    also = " (or defence, when the Type filter is a defence kind)"
+    prev = server.gui.add_button("Previous punch", hint=f"Jump to the previous punch matching the Events filters{also}")
+    nxt = server.gui.add_button("Next punch", hint=f"Jump to the next punch matching the Events filters{also}")
     return rows, prev, nxt
 
 
@@ -56,35 +61,43 @@ def make_events(
     athletes: list[str],
     rows: tuple[dict[int, viser.GuiSliderHandle[int]], viser.GuiButtonHandle, viser.GuiButtonHandle],
 ) -> EventsHandles:
-    """Filters, the punch picker, the list and the summary (call it inside the Events tab),
-    with the rows and buttons ``make_event_rows`` made under the timeline."""
-    athlete = server.gui.add_dropdown("Athlete", (ALL, *athletes), initial_value=ALL)
-    kind = server.gui.add_dropdown("Type", (ALL, *(t.replace("_", " ") for t in PUNCH_TYPES)), initial_value=ALL)
-    outcome = server.gui.add_dropdown("Outcome", (ALL, *OUTCOMES), initial_value=ALL)
-    event = server.gui.add_dropdown("Punch", (NO_EVENT,), initial_value=NO_EVENT)
+    """Filters, the event picker, the legend, the list and the summary (call it inside the Events
+    tab), with the rows and buttons ``make_event_rows`` made under the timeline."""
+    athlete = server.gui.add_dropdown("Athlete", (ALL, *athletes), initial_value=ALL,
+                                      hint="Who threw the punch, or who defended")  # fmt: skip
+    kind = server.gui.add_dropdown("Type", TYPE_OPTIONS, initial_value=ALL, hint="A punch type or a defence kind")
+    outcome = server.gui.add_dropdown("Outcome", (ALL, *OUTCOMES), initial_value=ALL,
+                                      hint="Of the punch (for defence: of the punch defended)")  # fmt: skip
+    event = server.gui.add_dropdown("Event", (NO_EVENT,), initial_value=NO_EVENT)
+    legend = server.gui.add_markdown(LEGEND)
     listing = server.gui.add_markdown("")
     summary = server.gui.add_markdown("")
-    return EventsHandles(rows[0], rows[1], rows[2], athlete, kind, outcome, event, listing, summary)
+    return EventsHandles(rows[0], rows[1], rows[2], athlete, kind, outcome, event, listing, summary, legend)
 
 
 def matching_rows(h: EventsHandles, view: EventsView) -> Any:
+    """Punch rows passing the filters."""
     return view.matching(h.athlete.value, h.type.value, h.outcome.value)
+
+
+def matching_defence(h: EventsHandles, view: EventsView) -> Any:
+    """Defence rows passing the filters."""
+    return view.defence_matching(h.athlete.value, h.type.value, h.outcome.value)
 
 
 def set_events(h: EventsHandles, view: EventsView, n_frames: int) -> None:
     """Show ``view``: the marks of each athlete's row, the picker, the list, the summary."""
-    rows = matching_rows(h, view)
+    rows, defence = matching_rows(h, view), matching_defence(h, view)
     for pid, row in h.rows.items():
         row.max = max(1, n_frames - 1)
-        marks = view.marks(pid, rows)
+        marks = view.marks(pid, rows, defence)
         # Marks are set after creation like the timeline's (``panels.timeline.set_problems``).
         row._marks = tuple(GuiSliderMark(value=float(v), label=lab) for v, lab in marks) or None
-    labels = tuple(view.label(int(i)) for i in rows)
-    h.event.options = (NO_EVENT, *labels)
+    h.event.options = (NO_EVENT, *view.picker_labels(rows, defence))
     h.event.value = NO_EVENT  # type: ignore[misc]
-    h.listing.content = view.listing(rows)
+    h.listing.content = view.listing(rows, defence)
     h.summary.content = view.summary_cards()
-    h.prev.disabled = h.next.disabled = rows.size == 0
+    h.prev.disabled = h.next.disabled = view.jump_frames(rows, defence).size == 0
 
 
 def wire_events(h: EventsHandles, get_view: Callable[[], EventsView], get_frame: Callable[[], int],
@@ -100,8 +113,8 @@ def wire_events(h: EventsHandles, get_view: Callable[[], EventsView], get_frame:
     def jump(which: str) -> Callable[[Any], None]:
         def cb(_: Any) -> None:
             view = get_view()
-            rows = matching_rows(h, view)
-            f = view.next_after(get_frame(), rows) if which == "next" else view.prev_before(get_frame(), rows)
+            rows, defence = matching_rows(h, view), matching_defence(h, view)
+            f = (view.next_after if which == "next" else view.prev_before)(get_frame(), rows, defence)
             if f is not None:
                 set_frame(f)
 
@@ -112,12 +125,9 @@ def wire_events(h: EventsHandles, get_view: Callable[[], EventsView], get_frame:
 
     @h.event.on_update
     def _(_: Any) -> None:
-        if h.event.value == NO_EVENT or not h.event.value.startswith("#"):
-            return
-        i = int(h.event.value.split()[0][1:]) - 1
-        ev = get_view().events
-        if ev is not None and 0 <= i < ev.n_punches:
-            set_frame(int(ev.punch_peak_frame[i]))
+        f = get_view().frame_of_label(h.event.value) if h.event.value != NO_EVENT else None
+        if f is not None:
+            set_frame(f)
 
     for row in h.rows.values():
         row.on_update(lambda e: set_frame(int(e.target.value)) if int(e.target.value) != get_frame() else None)

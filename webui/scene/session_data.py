@@ -52,7 +52,7 @@ class SessionData:
         physics_xml: path of ``physics/scene.xml`` or None.
         metrics: ``evaluate/metrics.json`` content (empty when absent).
         problems: ``evaluate/problems.npz`` (the per-frame problem flags) or None.
-        events: ``analyze/events.npz`` (punches, slips and ducks, clinches) or None.
+        events: ``analyze/events.npz`` (punches, defence: slips, ducks, blocks, parries; clinches) or None.
         series: ``analyze/series.npz`` (distance, stance, guard, work rate) or None.
         stamp: manifests' creation times, to notice a re-run.
     """
