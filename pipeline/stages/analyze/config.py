@@ -39,6 +39,12 @@ class PunchConfig:
     (m): a punch goes at him; a block, a parry or a hand leaving a clinch grip does not."""
     min_extension: float = 0.45
     """Smallest shoulder-to-wrist distance at the strike over the arm's length, in [0, 1]."""
+    max_start_drop: float = 0.5
+    """A punch starts from the guard: the fist at its start lies at most this many arm lengths
+    below the neck (shoulders' midpoint); an arm swinging up from the hip starts lower (> 0)."""
+    min_elbow_open_deg: float = 0.0
+    """The elbow opens by at least this from the start to the strike (degrees, in [-180, 180]):
+    a punch extends the arm, raising a hanging arm bends it."""
     max_out_s: float = 0.3
     """Longest way out (s, > 0): the start and the fastest frame are looked for this far
     before the excursion's peak at most."""
@@ -73,6 +79,11 @@ class PunchConfig:
             raise ValueError(
                 f"PunchConfig: edge_frac and arrive_frac must be in (0, 1), min_extension in [0, 1]; got "
                 f"{self.edge_frac}, {self.arrive_frac}, {self.min_extension}"
+            )
+        if not (self.max_start_drop > 0 and -180.0 <= self.min_elbow_open_deg <= 180.0):
+            raise ValueError(
+                f"PunchConfig: max_start_drop must be > 0 and min_elbow_open_deg in [-180, 180]; "
+                f"got {self.max_start_drop}, {self.min_elbow_open_deg}"
             )
         if self.max_gap_frames < 0 or self.clinch_margin_s < 0:
             raise ValueError(

@@ -3,16 +3,27 @@
 Per athlete and hand, in the athlete's facing frame (``body.facing_frames``), the wrist
 relative to the neck is ``r(t)``. The guard position ``g(t)`` is the running median of
 ``r`` over the frames where the fist is nearly still (``rest_speed_mps``), and the
-excursion ``D(t) = |r - g|``. A punch is a peak of ``D`` at least ``min_excursion_m`` high
-whose way out reaches ``min_speed_mps`` (relative to the neck, so footwork and the trunk
-carrying the guard do not count); it starts and ends where ``D`` drops below
-``edge_frac`` of its peak. Its strike (peak frame) is the first frame after the fastest
-one on the way out where the fist has slowed to ``arrive_frac`` of that speed: the moment
-it arrives at full extension or on the target (also for a hook, whose excursion can be
-largest mid-arc). It must also go at the opponent (end farther forward than it started,
-by ``min_forward_m``), with the arm extended (``min_extension``) and fast in the world
-frame (``min_peak_speed_mps``), and away from a clinch (``clinch_margin_s``): hands taking
-or leaving a clinch grip, parries, guard adjustments and feints fail one of these.
+excursion ``D(t) = |r - g|``. Every peak of ``D`` at least ``min_excursion_m`` high is a
+``Candidate``: it starts and ends where ``D`` drops below ``edge_frac`` of its peak, and
+its strike is the first frame after the fastest one on the way out where the fist has
+slowed to ``arrive_frac`` of that speed (it has arrived at full extension or on the
+target; also for a hook, whose excursion can be largest mid-arc).
+
+A candidate is a punch when it passes every rule of ``RULES`` (thresholds in
+``PunchConfig``), the checks a coach makes by eye:
+
+- ``duration``: out and back within ``max_duration_s`` (a hand held out is no punch);
+- ``out_speed``: the way out reaches ``min_speed_mps`` relative to the neck;
+- ``clinch``: the strike is not within ``clinch_margin_s`` of a clinch (hands taking a grip);
+- ``guard_start``: the fist starts from the guard, no lower than ``max_start_drop`` arm
+  lengths below the neck (an arm swinging up from the hip is not thrown from the guard);
+- ``elbow_extends``: the elbow opens from the start to the strike by ``min_elbow_open_deg``
+  (a punch drives the fist out by extending the arm; raising a hanging arm bends it);
+- ``extension``: shoulder-to-wrist at the strike at least ``min_extension`` arm lengths;
+- ``forward``: the fist ends ``min_forward_m`` farther towards the opponent than it started
+  (blocks, parries, catches and hands leaving a clinch grip do not go at him);
+- ``peak_speed``: the world-frame glove speed over the punch reaches ``min_peak_speed_mps``
+  (feints and guard adjustments are slower).
 """
 
 from __future__ import annotations
@@ -26,6 +37,11 @@ from scipy.signal import find_peaks
 from pipeline.stages.analyze.body import Body, fill_gaps, to_local
 from pipeline.stages.analyze.config import PunchConfig
 
+RULES: tuple[str, ...] = (
+    "duration", "out_speed", "clinch", "guard_start", "elbow_extends", "extension", "forward", "peak_speed",
+)  # fmt: skip
+"""The punch rules, in the order they are checked (module docstring; ``rule_failed``)."""
+
 
 @dataclass(frozen=True)
 class HandTrack:
@@ -34,7 +50,9 @@ class HandTrack:
     Fields: r (frames, 3) wrist - neck in the facing frame, metres; ok (frames,) bool;
     speed_rel (frames,) |dr/dt| (central differences), m/s; excursion (frames,) distance
     from the guard position, m (0 where not ok); wrist (frames, 3) world wrist; arm_m the
-    arm's length (median shoulder-elbow + elbow-wrist), metres.
+    arm's length (median shoulder-elbow + elbow-wrist), metres; elbow_deg (frames,) the
+    elbow's angle between upper arm and forearm, degrees in [0, 180] (180 = straight arm),
+    with elbow_ok (frames,) where shoulder, elbow and wrist are all estimated.
     """
 
     hand: str
@@ -44,6 +62,40 @@ class HandTrack:
     excursion: np.ndarray
     wrist: np.ndarray
     arm_m: float
+    elbow_deg: np.ndarray
+    elbow_ok: np.ndarray
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One excursion of a fist and what the punch rules measure on it (rows index the
+    analysed frames).
+
+    Fields: start / peak (strike) / end / fastest (largest speed relative to the neck on
+    the way out) / top (largest excursion) rows; excursion_m at the top, m; out_speed_mps
+    at ``fastest``, relative to the neck, m/s; peak_speed_mps the largest world-frame
+    frame-to-frame wrist speed over start .. end, m/s; extension shoulder-to-wrist at the
+    strike over the arm's length (NaN without one); forward_m the fist's advance towards
+    the opponent from start to strike, m; start_drop the fist's height below the neck at the
+    start over the arm's length (positive = below; NaN without an arm length);
+    elbow_open_deg the elbow angle at the strike minus at the start, degrees (NaN where
+    the elbow is not estimated); near_clinch: the strike is within the clinch margin.
+    """
+
+    hand: str
+    start: int
+    peak: int
+    end: int
+    fastest: int
+    top: int
+    excursion_m: float
+    out_speed_mps: float
+    peak_speed_mps: float
+    extension: float
+    forward_m: float
+    start_drop: float
+    elbow_open_deg: float
+    near_clinch: bool
 
 
 @dataclass(frozen=True)
@@ -89,6 +141,15 @@ def _running_median(r: np.ndarray, use: np.ndarray, half: int) -> np.ndarray:
     return out
 
 
+def elbow_angle_deg(shoulder: np.ndarray, elbow: np.ndarray, wrist: np.ndarray) -> np.ndarray:
+    """(frames,) angle at the elbow between upper arm and forearm, degrees in [0, 180]
+    (180 = straight); 0 where a segment has no length."""
+    u, f = shoulder - elbow, wrist - elbow
+    n = np.linalg.norm(u, axis=-1) * np.linalg.norm(f, axis=-1)
+    c = np.sum(u * f, axis=-1) / np.maximum(n, 1e-12)
+    return np.where(n > 1e-12, np.degrees(np.arccos(np.clip(c, -1.0, 1.0))), 0.0)
+
+
 def hand_track(body: Body, R: np.ndarray, r_ok: np.ndarray, hand: str, cfg: PunchConfig) -> HandTrack:
     """The signals of ``body``'s ``hand`` fist in the facing frames ``R`` (valid ``r_ok``)."""
     w, wok = body.point(f"{hand}_wrist")
@@ -104,7 +165,7 @@ def hand_track(body: Body, R: np.ndarray, r_ok: np.ndarray, hand: str, cfg: Punc
     arm_ok = wok & eok & sok
     arm = np.linalg.norm(s - e, axis=1) + np.linalg.norm(e - w, axis=1)
     arm_m = float(np.median(arm[arm_ok])) if arm_ok.any() else float("nan")
-    return HandTrack(hand, r, ok, speed, exc, w, arm_m)
+    return HandTrack(hand, r, ok, speed, exc, w, arm_m, elbow_angle_deg(s, e, w), arm_ok)
 
 
 def _edge(exc: np.ndarray, ok: np.ndarray, k: int, level: float, step: int) -> int:
@@ -146,52 +207,85 @@ def raw_peak_speed(
     return max(speeds) if speeds else None
 
 
-def detect(body: Body, h: HandTrack, cfg: PunchConfig, clinch: np.ndarray | None = None) -> list[Detection]:
-    """The punches of one fist, in time order (see the module docstring). ``clinch``
-    (frames,) bool marks clinch frames (``PunchConfig.clinch_margin_s``)."""
+def _near_clinch(clinch: np.ndarray | None, n: int, margin: int) -> np.ndarray:
+    out = np.zeros(n, dtype=bool)
+    if clinch is not None and clinch.any():
+        for i in np.flatnonzero(clinch):
+            out[max(0, i - margin) : i + margin + 1] = True
+    return out
+
+
+def candidates(body: Body, h: HandTrack, cfg: PunchConfig, clinch: np.ndarray | None = None) -> list[Candidate]:
+    """Every excursion peak of one fist at least ``min_excursion_m`` high, measured for the
+    rules, in time order. ``clinch`` (frames,) bool marks clinch frames."""
     exc, ok, v = h.excursion, h.ok, h.speed_rel
     n = exc.shape[0]
     if n < 5 or not ok.any():
         return []
     peaks, _ = find_peaks(exc, height=cfg.min_excursion_m, prominence=0.5 * cfg.min_excursion_m)
-    max_len = cfg.max_duration_s * body.fps
     max_out = max(2, int(round(cfg.max_out_s * body.fps)))
-    near_clinch = np.zeros(n, dtype=bool)
-    if clinch is not None and clinch.any():
-        m = int(round(cfg.clinch_margin_s * body.fps))
-        for i in np.flatnonzero(clinch):
-            near_clinch[max(0, i - m) : i + m + 1] = True
+    near_clinch = _near_clinch(clinch, n, int(round(cfg.clinch_margin_s * body.fps)))
     shoulder, _ = body.point(f"{h.hand}_shoulder")
-    conf_idx = [body.names.index(f"{h.hand}_{j}") for j in ("wrist", "elbow", "shoulder") if f"{h.hand}_{j}" in body.names]
-    out: list[Detection] = []
+    has_arm = bool(np.isfinite(h.arm_m) and h.arm_m > 0)
+    out: list[Candidate] = []
     for k0 in peaks:
         level = cfg.edge_frac * exc[k0]
         a, b = _edge(exc, ok, k0, level, -1), _edge(exc, ok, k0, level, +1)
         a = max(a, k0 - max_out)
-        if b - a > max_len or b - a < 2:
-            continue
         t_out = a + int(np.argmax(v[a : k0 + 1]))
         v_out = float(v[t_out])
         slow = np.flatnonzero(v[t_out + 1 : b + 1] < cfg.arrive_frac * v_out)
-        k = t_out + 1 + int(slow[0]) if slow.size else k0
-        if v_out < cfg.min_speed_mps or near_clinch[k]:
-            continue
-        ext = float(np.linalg.norm(h.wrist[k] - shoulder[k]) / h.arm_m) if np.isfinite(h.arm_m) else float("nan")
-        forward = float(h.r[k, 0] - h.r[a, 0])
-        if not ext >= cfg.min_extension or forward < cfg.min_forward_m:
-            continue
+        k = t_out + 1 + int(slow[0]) if slow.size else int(k0)
         # The largest frame-to-frame displacement over the punch (out and back), as a
         # speed: the same estimator the synthetic ground truth uses.
         step = np.linalg.norm(np.diff(h.wrist[a : b + 1], axis=0), axis=1) * body.fps
         good = ok[a:b] & ok[a + 1 : b + 1]
         peak_speed = float(step[good].max()) if good.any() else v_out
-        if peak_speed < cfg.min_peak_speed_mps:
+        ext = float(np.linalg.norm(h.wrist[k] - shoulder[k]) / h.arm_m) if has_arm else float("nan")
+        drop = float(-h.r[a, 2] / h.arm_m) if has_arm else float("nan")
+        both = h.elbow_ok[k] and h.elbow_ok[a]
+        opened = float(h.elbow_deg[k] - h.elbow_deg[a]) if both else float("nan")
+        out.append(
+            Candidate(h.hand, int(a), int(k), int(b), int(t_out), int(k0), float(exc[k0]), v_out, peak_speed, ext,
+                      float(h.r[k, 0] - h.r[a, 0]), drop, opened, bool(near_clinch[k]))  # fmt: skip
+        )
+    return out
+
+
+def rule_failed(c: Candidate, cfg: PunchConfig, fps: float) -> str | None:
+    """The first rule of ``RULES`` that ``c`` fails, None for a punch. A measure that could
+    not be taken (NaN: no arm length, elbow not estimated) fails its rule, except the elbow's:
+    without it the other rules decide."""
+    checks = {
+        "duration": 2 <= c.end - c.start <= cfg.max_duration_s * fps,
+        "out_speed": c.out_speed_mps >= cfg.min_speed_mps,
+        "clinch": not c.near_clinch,
+        "guard_start": c.start_drop <= cfg.max_start_drop,
+        "elbow_extends": not c.elbow_open_deg < cfg.min_elbow_open_deg,
+        "extension": c.extension >= cfg.min_extension,
+        "forward": c.forward_m >= cfg.min_forward_m,
+        "peak_speed": c.peak_speed_mps >= cfg.min_peak_speed_mps,
+    }
+    for name in RULES:
+        if not checks[name]:
+            return name
+    return None
+
+
+def detect(body: Body, h: HandTrack, cfg: PunchConfig, clinch: np.ndarray | None = None) -> list[Detection]:
+    """The punches of one fist, in time order: the candidates that pass every rule (see the
+    module docstring). ``clinch`` (frames,) bool marks clinch frames."""
+    idx = [body.names.index(f"{h.hand}_{j}") for j in ("wrist", "elbow", "shoulder") if f"{h.hand}_{j}" in body.names]
+    out: list[Detection] = []
+    for c in candidates(body, h, cfg, clinch):
+        if rule_failed(c, cfg, body.fps) is not None:
             continue
-        score = np.clip((exc[k0] - cfg.min_excursion_m) / cfg.min_excursion_m + 0.5, 0.0, 1.0)
-        score *= np.clip((peak_speed - cfg.min_peak_speed_mps) / cfg.min_peak_speed_mps + 0.5, 0.0, 1.0)
-        kp_conf = float(body.confidence[a : b + 1][:, conf_idx].mean()) if conf_idx else 1.0
-        det = Detection(h.hand, a, k, b, t_out, float(exc[k0]), v_out, peak_speed, ext, float(score * kp_conf))
-        if out and a <= out[-1].end:  # one excursion, two bumps: keep the larger
+        score = np.clip((c.excursion_m - cfg.min_excursion_m) / cfg.min_excursion_m + 0.5, 0.0, 1.0)
+        score *= np.clip((c.peak_speed_mps - cfg.min_peak_speed_mps) / cfg.min_peak_speed_mps + 0.5, 0.0, 1.0)
+        kp_conf = float(body.confidence[c.start : c.end + 1][:, idx].mean()) if idx else 1.0
+        det = Detection(c.hand, c.start, c.peak, c.end, c.fastest, c.excursion_m, c.out_speed_mps,
+                        c.peak_speed_mps, c.extension, float(score * kp_conf))  # fmt: skip
+        if out and det.start <= out[-1].end:  # one excursion, two bumps: keep the larger
             if det.excursion_m > out[-1].excursion_m:
                 out[-1] = det
             continue
