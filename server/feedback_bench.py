@@ -11,12 +11,17 @@ opens its viewer through the app (``/viewer/{id}/``) and measures, in this order
   with a re-run, until the re-triangulated artifact is written, and until the viewer shows the
   3D layer up to date again (its "Layers after the edit" block); the re-run is then cancelled
   (fit and physics would take minutes);
-- playback: a headless Chromium page (software WebGL: ``--disable-gpu``) plays at 1x and the
-  frame lines it displays per second are counted in the page.
+- playback without a browser: the websocket client plays at 1x for ``play_s`` s: the frame
+  updates the viewer sends per second, the bout frames they advance per second and the bytes
+  per update (the server side alone);
+- playback: a headless Chromium page (software WebGL: ``--disable-gpu``) plays at 1x; the
+  frame lines it displays per second are counted in the page, and the bout frames they advance
+  per second (over the bout's fps: the real-time factor of playback).
 """
 
 from __future__ import annotations
 
+import json
 import random
 import re
 import shutil
@@ -40,15 +45,22 @@ TARGET_PLAY_HZ = 15.0
 
 LAYER_3D = "3D (filtered)"
 
-# Counts the distinct "frame N / M" lines the page displays (a MutationObserver on the page).
-_COUNT_JS = """(ms) => new Promise((resolve) => {
-  let last = null, n = 0;
+# Counts the distinct "frame N / M" lines the page displays (a MutationObserver on the page) and
+# the bout frames they advance (modulo the bout's length: playback wraps): [lines, frames].
+_COUNT_JS = """([ms, nFrames]) => new Promise((resolve) => {
+  let last = null, n = 0, advanced = 0;
   const read = () => { const m = document.body.innerText.match(/frame (\\d+) \\/ \\d+/); return m ? m[1] : null; };
   const el = [...document.querySelectorAll('p, span, div')].find(e => /^frame \\d+ \\/ \\d+/.test(e.textContent.trim()));
   const get = el ? () => { const m = el.textContent.match(/frame (\\d+) \\/ \\d+/); return m ? m[1] : read(); } : read;
-  const obs = new MutationObserver(() => { const f = get(); if (f !== null && f !== last) { last = f; n += 1; } });
+  const obs = new MutationObserver(() => {
+    const f = get();
+    if (f !== null && f !== last) {
+      if (last !== null) advanced += ((parseInt(f) - parseInt(last)) % nFrames + nFrames) % nFrames;
+      last = f; n += 1;
+    }
+  });
   obs.observe(document.body, {subtree: true, childList: true, characterData: true});
-  setTimeout(() => { obs.disconnect(); resolve(n); }, ms);
+  setTimeout(() => { obs.disconnect(); resolve([n, advanced]); }, ms);
 })"""
 
 
@@ -83,6 +95,40 @@ def scrub_latency_ms(c: WsClient, frames: list[int], timeout_s: float = 30.0) ->
         dt = _wait(lambda f=f: c.frame() == f, timeout_s)
         out.append(float("nan") if dt is None else 1000.0 * dt)
     return out
+
+
+def _fps_of(c: WsClient) -> float:
+    """The bout's fps from the info line (``frame N / LAST (T s)``) when session.json has none."""
+    for text in list(c.markdown.values()):
+        m = re.match(r"frame (\d+) / \d+ \(([\d.]+) s\)", text)
+        if m and float(m.group(2)) > 0:
+            return int(m.group(1)) / float(m.group(2))
+    raise ValueError("bench viewer feedback: no fps in session.json and none readable from the viewer")
+
+
+def play_rows_ws(c: WsClient, n_frames: int, fps: float, play_s: float) -> list[dict[str, Any]]:
+    """Rows of ``play_s`` s of playback at 1x seen by the websocket client (no browser): frame
+    updates per second, bout frames advanced per second, bytes per update."""
+    frames: list[int] = []
+    stop = time.perf_counter() + 1.0 + play_s
+    c.set_value("Play", True)
+    time.sleep(1.0)
+    b0, u0 = c.received_bytes, c.frame_updates
+    while time.perf_counter() < stop:
+        f = c.frame()
+        if f is not None and (not frames or frames[-1] != f):
+            frames.append(f)
+        time.sleep(0.002)
+    updates, sent = c.frame_updates - u0, c.received_bytes - b0
+    c.set_value("Play", False)
+    advanced = sum((b - a) % n_frames for a, b in zip(frames[:-1], frames[1:], strict=True))
+    return [
+        {"measure": "playback at 1x, websocket client without a browser (frame updates/s)",
+         "value": round(updates / play_s, 1)},
+        {"measure": f"  bout frames advanced per second there (real-time factor at {fps:g} fps)",
+         "value": f"{advanced / play_s:.1f} ({advanced / play_s / fps:.2f}x)"},
+        {"measure": "  sent per frame update while playing (KB)", "value": round(sent / max(1, updates) / 1e3, 1)},
+    ]  # fmt: skip
 
 
 def _pct(xs: list[float], q: float) -> float:
@@ -132,6 +178,7 @@ def run_feedback(session: str, n_scrub: int = 50, play_s: float = 10.0, seed: in
                 raise ValueError("bench viewer feedback: the viewer sent no frame line")
             n_frames = int(re.search(r"frame \d+ / (\d+)", next(t for t in c.markdown.values()
                                                                   if t.startswith("frame "))).group(1)) + 1  # type: ignore[union-attr]
+            fps = float(json.loads((folder / "session.json").read_text()).get("fps") or 0.0) or _fps_of(c)
             rng = random.Random(seed)
             frames = rng.sample(range(n_frames), min(n_scrub, n_frames))
             scrub_latency_ms(c, frames)  # warm-up: the camera images of these frames are cached now
@@ -177,6 +224,7 @@ def run_feedback(session: str, n_scrub: int = 50, play_s: float = 10.0, seed: in
                 {"measure": "fit / physics layers at that moment", "value": " | ".join(f"{k}: {v}" for k, v in stale_lines.items())},
             ]  # fmt: skip
             _wait(lambda: api.get(f"/jobs/{job_id}").json()["status"] in ("cancelled", "done", "failed"), 60.0, 0.2)
+            rows += play_rows_ws(c, n_frames, fps, play_s)
             c.close()
 
             if browser:
@@ -189,12 +237,15 @@ def run_feedback(session: str, n_scrub: int = 50, play_s: float = 10.0, seed: in
                     bc = open_browser_client(b, srv.url, sid, cookie)
                     bc.set_value("Play", True)
                     time.sleep(2.0)
-                    n = int(bc.page.evaluate(_COUNT_JS, int(play_s * 1000)))
+                    n, advanced = bc.page.evaluate(_COUNT_JS, [int(play_s * 1000), n_frames])
                     bc.close()
                     b.close()
-                rows.append({"measure": "playback at 1x in headless Chromium, software WebGL (frame updates/s)",
-                             "value": round(n / play_s, 1),
-                             "target": f">= {TARGET_PLAY_HZ:g} with hardware WebGL"})  # fmt: skip
+                rows += [
+                    {"measure": "playback at 1x in headless Chromium, software WebGL (frame updates/s)",
+                     "value": round(int(n) / play_s, 1), "target": f">= {TARGET_PLAY_HZ:g} with hardware WebGL"},
+                    {"measure": f"  bout frames advanced per second there (real-time factor at {fps:g} fps)",
+                     "value": f"{int(advanced) / play_s:.1f} ({int(advanced) / play_s / fps:.2f}x)"},
+                ]  # fmt: skip
             api.close()
             web.close()
         return rows
