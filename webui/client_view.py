@@ -186,12 +186,12 @@ class ClientView:
                     continue
             if self._render_wanted.is_set():
                 self._render_wanted.clear()
+                last_render = time.monotonic()  # slots are PLAY_MAX_HZ apart, render time included
                 try:
                     self.render(self.frame, playing=self.playing)
                 except Exception:  # keep the viewer alive; the traceback goes to the log
                     if not self._stop.is_set():
                         log.exception("%s: rendering frame %d failed", self.name, self.frame)
-                last_render = time.monotonic()
 
     def _advance(self) -> None:
         """Move to the frame playback says is due (frames are skipped when renders are slow)."""
