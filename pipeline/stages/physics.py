@@ -112,7 +112,7 @@ class PhysicsConfig:
         **{k: f"reference.{k}" for k in ("separation_clearance_m", "flat_feet", "calibrate_foot_sites", "ik_posture_weight",
                                            "schedule", "feedforward_friction", "feedforward_smooth_frames")},
         "window": "solver.window", "commit": "solver.commit",
-        **{k: f"solver.ilqr.{k}" for k in ("max_iter", "deriv_every", "n_alpha", "alpha_min", "fd_centered", "jacobian_reuse", "rollout_threads")},
+        **{k: f"solver.ilqr.{k}" for k in ("max_iter", "deriv_every", "n_alpha", "alpha_min", "fd_centered", "jacobian_reuse", "threads")},
         **{k: f"solver.weights.{k}" for k in ("w_reg", "w_pos", "w_vel", "w_collision", "w_residual", "w_skate", "collision_clearance_m")},
     }  # fmt: skip
     """Flat keys of ``session.json`` before the settings were nested -> where they are now

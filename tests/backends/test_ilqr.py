@@ -85,7 +85,7 @@ def test_line_search_on_threads_gives_the_same_result() -> None:
     runs = [
         optimise(
             model, mujoco.MjData(model), cost, np.zeros(2), np.zeros(2), np.zeros((30, 2)),
-            ILQRConfig(max_iter=6, rel_tol=0.0, rollout_threads=th),
+            ILQRConfig(max_iter=6, rel_tol=0.0, threads=th),
         )
         for th in (1, 3)
     ]

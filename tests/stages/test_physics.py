@@ -168,8 +168,8 @@ def test_floor_settings_reach_the_mjcf_and_bad_ones_are_refused() -> None:
         PhysicsConfig(humanoid={"floor_margin_m": "0.01"})
     with pytest.raises(ValueError, match=r"ILQRConfig\.jacobian_reuse must be int"):
         PhysicsConfig(solver={"ilqr": {"jacobian_reuse": 2.0}})
-    with pytest.raises(ValueError, match="rollout_threads"):
-        PhysicsConfig(solver={"ilqr": {"rollout_threads": 0}})
+    with pytest.raises(ValueError, match="threads"):
+        PhysicsConfig(solver={"ilqr": {"threads": -1}})
     # A flat key of the settings before they were nested says where it went.
     with pytest.raises(ValueError, match=r"w_pos is now stage_config\.physics\.solver\.weights\.w_pos"):
         build_config(PhysicsConfig, {"w_pos": 50.0}, where)

@@ -196,12 +196,15 @@ class ILQRConfig:
     """Failed backward passes / line searches (μ raised each time) before an iteration gives up."""
     rel_tol: float = 1e-3
     """Stop when an iteration's relative cost decrease is below this, >= 0."""
-    rollout_threads: int = 1
-    """Threads rolling the line-search candidates out together (same result either way), >= 1."""
+    threads: int = 0
+    """Worker threads of the finite differences and the line search (the result does not
+    depend on it), >= 0; 0 = automatic: 2 (1 on a single CPU) for a thread-safe cost."""
 
     def __post_init__(self) -> None:
         check_field_types(self)
-        for name in ("max_iter", "deriv_every", "jacobian_reuse", "rollout_threads", "n_alpha"):
+        if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 0:
+            raise ValueError(f"ILQRConfig.threads must be an integer >= 0, got {self.threads!r}")
+        for name in ("max_iter", "deriv_every", "jacobian_reuse", "n_alpha"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"ILQRConfig.{name} must be an integer >= 1, got {v!r}")

@@ -417,13 +417,13 @@ def optimise(
     lowers the total cost). Raises ``UnstableRollout`` if the initial rollout is unstable.
 
     ``threads``: worker threads of the finite differences and the line search (None:
-    ``cfg.rollout_threads`` if above 1, else ``default_threads()`` for a cost marked
-    ``thread_safe`` and 1 for any other); the result does not depend on it.
+    ``cfg.threads`` if above 0, else ``default_threads()`` for a cost marked ``thread_safe``
+    and 1 for any other); the result does not depend on it.
     """
     if threads is not None:
         n_threads = threads
-    elif cfg.rollout_threads > 1:
-        n_threads = cfg.rollout_threads
+    elif cfg.threads > 0:
+        n_threads = cfg.threads
     else:
         n_threads = default_threads() if getattr(cost, "thread_safe", False) else 1
     with Workers(model, n_threads) as workers:
