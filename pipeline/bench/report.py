@@ -168,6 +168,7 @@ PHYSICS = (
     col("floor Fz bw", "grf_z_mean_frac_bw", "{:.2f}"),
     col("τ > human %", "torque_over_pct_any", "{:.0f}"),
     col("RTF ×", "realtime_factor", "{:.1f}"),
+    col("× mj_step", "x_plain_step", "{:.0f}"),
 )
 """``pipeline.bench.physics`` rows: the means over seeds when the rows have them, else every row."""
 
