@@ -48,6 +48,7 @@ from webui.panels.annotate import (
 from webui.panels.display import label_to_source, make_display, source_options
 from webui.panels.events import follow_frame, make_event_rows, make_events, set_events, wire_events
 from webui.panels.export import make_export, wire_export
+from webui.panels.plot_cursor import PlotCursor, plot_charts
 from webui.panels.plots import make_plots, update_plots
 from webui.panels.timeline import make_timeline, set_problems
 from webui.panels.views import make_views
@@ -112,6 +113,8 @@ class ClientView:
                 self.annotate = make_annotate(scope, data.camera_names, athletes, data.n_frames)
         with tabs.add_tab("Plots"):
             self.plots = make_plots(as_server, compute_series(data, app.default_source()), palette)
+        self.plot_cursor = PlotCursor(plot_charts(self.plots))
+        """The current-frame line on this view's plots (``webui.panels.plot_cursor``)."""
         with tabs.add_tab("Events"):
             self.events = make_events(scope, [n for _, n in everyone], event_rows)
         with tabs.add_tab("Display"):
@@ -212,7 +215,8 @@ class ClientView:
         """Draw ``frame`` in this view: 3D persons, camera images, selection and info.
 
         ``playing``: the camera images go at ``PLAY_IMAGE_SCALE`` of their size and at most
-        ``PLAY_IMAGES_HZ`` times per second (skipped in between); otherwise at full size."""
+        ``PLAY_IMAGES_HZ`` times per second (skipped in between), the plots' cursor at most
+        ``PLAY_CURSOR_HZ`` times; otherwise full-size images and the cursor at ``frame``."""
         app = self.app
         with self._lock:
             data = self.persons.data
@@ -236,6 +240,7 @@ class ClientView:
             kinds = problems.kinds_at(frame) if frame < problems.n_frames else []
             flag = f" — ⚠ {', '.join(kinds)}" if kinds else ""
             self.timeline.info.content = f"frame {frame} / {data.n_frames - 1} ({frame / data.fps:.2f} s){flag}"
+            self.plot_cursor.show(frame / data.fps, playing)  # at most PLAY_CURSOR_HZ moves/s while playing
             self.rendered += 1
 
     def _draw_images(self, frame: int, sel_track: int | None, full: bool) -> None:
