@@ -5,7 +5,8 @@ For each seed and camera count the bout is generated with the varied script
 outcomes, feints, counters; ``pipeline.synthetic.combos``), identities come from ground
 truth (as in ``bench fit``, to isolate the 3D and the analytics from association errors),
 then triangulation and the fit run and the analytics run on the fit's keypoints, with
-the raw triangulation for the glove speeds, as the analyze step does (the physics stage
+the raw triangulation for the glove speeds and the filtered one for the punches the fit
+flattened (``pipeline.stages.analyze.motion``) (the physics stage
 is left out: minutes per bout). Scores (``pipeline.bench.analytics_score``):
 punch precision / recall (strikes matched within 3 frames, same athlete and hand), type
 and outcome accuracy among the matched, peak-speed error, clinch-frame F1, and the
@@ -57,9 +58,7 @@ def _fit_keypoints(bout: Any, sources: tuple[str, ...]) -> dict[str, Keypoints3D
 
     assoc = bout.gt_association()
     raw, tri = run_triangulate(bout.tracks, assoc, bout.rig, TriangulateConfig())
-    out: dict[str, Keypoints3D] = {"raw": raw}
-    if "filtered" in sources:
-        out["filtered"] = tri
+    out: dict[str, Keypoints3D] = {"raw": raw, "filtered": tri}
     if "fit" in sources:
         from pipeline.stages.fit import FitConfig
         from pipeline.stages.fit import run as run_fit
@@ -157,11 +156,13 @@ def pose2sim_row(session_dir: str | Path) -> dict[str, Any] | None:
     store = ArtifactStore(Path(session_dir))
     raw_stage, raw_art = RESULT_ARTIFACTS["raw"]
     raw = store.load(raw_stage, raw_art, Keypoints3D) if store.has(raw_stage, f"{raw_art}.npz") else None
+    f_stage, f_art = RESULT_ARTIFACTS["filtered"]
+    filtered = store.load(f_stage, f_art, Keypoints3D) if store.has(f_stage, f"{f_art}.npz") else None
     for name in ("fit", "physics", "filtered"):
         stage, art = RESULT_ARTIFACTS[name]
         if store.has(stage, f"{art}.npz"):
             kp = store.load(stage, art, Keypoints3D)
-            ev = analyze(AnalyzeInputs(kp, raw=raw)).events
+            ev = analyze(AnalyzeInputs(kp, raw=raw, filtered=filtered)).events
             minutes = kp.n_frames / kp.fps / 60.0
             return {
                 "data": f"Pose2Sim sample ({name})",
@@ -209,21 +210,25 @@ def run_bench(
             t0 = time.perf_counter()
             bout = make_bout(SyntheticConfig(seed=int(seed), n_frames=int(n_frames), n_cameras=n_cams, variety=True))
             made: dict[str, Keypoints3D] = {}
-            for src in ("raw", *wanted):
+            tri: dict[str, Keypoints3D] = {}
+            for src in ("raw", "filtered", *[w for w in wanted if w != "filtered"]):
                 key = f"kp_s{seed}_c{n_cams}_f{n_frames}_{src}"
 
                 def make(src: str = src, made: dict[str, Keypoints3D] = made, bout: Any = bout) -> Keypoints3D:
-                    if src not in made:
-                        made.update(_fit_keypoints(bout, wanted))
+                    if src not in made:  # the triangulation alone unless the fit is asked for
+                        made.update(_fit_keypoints(bout, wanted if src == "fit" else ("filtered",)))
                     return made[src]
 
                 kp = bout.gt if src == "gt" else _cached(cache, key, make)
-                if src == "raw":
-                    raw = kp
-                    continue
-                # Speeds from the raw triangulation (``PunchConfig.speed_source``); on
-                # ground truth from itself.
-                s = score(bout.truth, analyze(AnalyzeInputs(kp, raw=None if src == "gt" else raw)).events)
+                if src in ("raw", "filtered"):
+                    tri[src] = kp
+                    if src not in wanted:
+                        continue
+                # Speeds from the raw triangulation (``PunchConfig.speed_source``), punches the fit
+                # flattened from the filtered one (``PunchConfig.flattened``); on ground truth neither.
+                real = src != "gt"
+                inp = AnalyzeInputs(kp, raw=tri["raw"] if real else None, filtered=tri["filtered"] if real else None)
+                s = score(bout.truth, analyze(inp).events)
                 tot = totals.setdefault((src, n_cams), {k: 0 for k in COUNT_KEYS} | {"speed_err_max": 0.0})
                 for k in COUNT_KEYS:
                     tot[k] += s[k]

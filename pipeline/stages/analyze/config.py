@@ -67,12 +67,31 @@ class PunchConfig:
     so that a raw triangulation outlier cannot make a punch out of a reach."""
     max_gap_frames: int = 4
     """Gaps in a joint's estimate up to this many frames are interpolated (>= 0)."""
+    flattened: bool = False
+    """Also look for punches the body fit flattened on the filtered triangulation's wrist,
+    when the stage gets it (``pipeline.stages.analyze.motion``); off by default, its false
+    punches outweigh its finds with 2 views (docs/design/analytics.md)."""
+    flattened_max_ratio: float = 0.95
+    """A filtered-track excursion counts as flattened when the fit's wrist path over it is at
+    most this fraction of the filtered wrist's (in (0, 1])."""
+    flattened_min_out_s: float = 0.06
+    """... and its way out (start to strike) lasts at least this (s, > 0): a filter or
+    triangulation spike jumps out in a frame or two."""
+    flattened_min_raw_speed_mps: float = 5.0
+    """... and the raw triangulation's peak wrist speed over its way out reaches this (m/s, > 0):
+    a real punch measured by two views, not the filter's drift where one view saw the wrist."""
 
     def __post_init__(self) -> None:
         _positive("PunchConfig", guard_window_s=self.guard_window_s, rest_speed_mps=self.rest_speed_mps,
                   min_excursion_m=self.min_excursion_m, min_speed_mps=self.min_speed_mps,
                   min_peak_speed_mps=self.min_peak_speed_mps, max_duration_s=self.max_duration_s,
                   max_out_s=self.max_out_s)  # fmt: skip
+        if not (0.0 < self.flattened_max_ratio <= 1.0 and self.flattened_min_raw_speed_mps > 0 and self.flattened_min_out_s > 0):
+            raise ValueError(
+                f"PunchConfig: flattened_max_ratio must be in (0, 1], flattened_min_raw_speed_mps and "
+                f"flattened_min_out_s > 0; got {self.flattened_max_ratio}, {self.flattened_min_raw_speed_mps}, "
+                f"{self.flattened_min_out_s}"
+            )
         if not self.raw_speed_max_ratio >= 1.0:
             raise ValueError(f"PunchConfig.raw_speed_max_ratio must be >= 1, got {self.raw_speed_max_ratio}")
         if not (0.0 < self.edge_frac < 1.0 and 0.0 < self.arrive_frac < 1.0 and 0.0 <= self.min_extension <= 1.0):

@@ -1,8 +1,8 @@
 """analyze: boxing analytics on a 3D result (pure: data in, data out).
 
 A readable chain: the athletes' joint tracks (``body``) -> per fist, the punches
-(``punches``) -> their type (``classify``) and outcome (``outcome``) -> the defender's
-slips and ducks and the clinches (``defence``), blocks and parries (``blocks``) -> the
+(``punches``; and those the fit flattened, from the filtered triangulation: ``motion``) ->
+their type (``classify``) and outcome (``outcome``) -> the defender's slips and ducks and the clinches (``defence``), blocks and parries (``blocks``) -> the
 per-frame series (``ring``, ``workrate``).
 """
 
@@ -19,9 +19,10 @@ from pipeline.schema.annotations import Annotation
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import PhysicsResult
 from pipeline.stages.analyze import blocks, classify, defence, outcome, ring
-from pipeline.stages.analyze.body import Body, bodies, facing_frames, opponent_of
+from pipeline.stages.analyze.body import Body, bodies, facing_frames, fill_gaps, opponent_of
 from pipeline.stages.analyze.config import AnalyzeConfig
 from pipeline.stages.analyze.corrections import Athlete, apply_corrections
+from pipeline.stages.analyze.motion import flattened_punches
 from pipeline.stages.analyze.punches import detect, hand_track, raw_peak_speed
 from pipeline.stages.analyze.workrate import punches_per_min
 
@@ -36,12 +37,16 @@ class AnalyzeInputs:
     """keypoints: the 3D result analysed; physics: the physics stage's result when the
     keypoints are its own (its contacts then decide outcomes where they exist); raw: the
     unfiltered triangulation, where the peak glove speeds are measured
-    (``PunchConfig.speed_source``); corrections: annotators' event edits, applied in order after
-    detection (``corrections.apply_corrections``; other edit kinds are ignored)."""
+    (``PunchConfig.speed_source``) and punches the fit flattened are confirmed; filtered: the
+    filtered triangulation, where punches the fit flattened are looked for
+    (``PunchConfig.flattened``, ``motion``; unused when it is the analysed result itself);
+    corrections: annotators' event edits, applied in order after detection
+    (``corrections.apply_corrections``; other edit kinds are ignored)."""
 
     keypoints: Keypoints3D
     physics: PhysicsResult | None = None
     raw: Keypoints3D | None = None
+    filtered: Keypoints3D | None = None
     corrections: tuple[Annotation, ...] = ()
 
 
@@ -67,15 +72,39 @@ class _Punch:
     confidence: float
 
 
+def _rows_on(src: Keypoints3D, kp: Keypoints3D) -> tuple[np.ndarray, np.ndarray]:
+    """(frames,) rows of ``src`` at ``kp``'s frames (clipped) and whether ``src`` has that frame."""
+    rows = np.searchsorted(src.frame_indices, kp.frame_indices)
+    rows_c = np.minimum(rows, max(src.n_frames - 1, 0))
+    same = (rows < src.n_frames) & (src.frame_indices[rows_c] == kp.frame_indices)
+    return rows_c, same
+
+
+def _motion_body(filtered: Keypoints3D | None, kp: Keypoints3D, pid: int, max_gap: int) -> Body | None:
+    """Athlete ``pid`` of the filtered triangulation on ``kp``'s frames and joints (matched by
+    name; a joint it lacks is invalid), short gaps filled; None without one, or when ``kp`` is
+    that result already (nothing to compare)."""
+    if filtered is None or filtered is kp or pid not in filtered.person_ids.tolist() or filtered.n_frames == 0:
+        return None
+    p = filtered.person_index(pid)
+    rows, same = _rows_on(filtered, kp)
+    have = [n in filtered.joint_names for n in kp.joint_names]
+    cols = [filtered.joint_names.index(n) if h else 0 for n, h in zip(kp.joint_names, have, strict=True)]
+    ok = filtered.valid[rows][:, p][:, cols] & same[:, None] & np.array(have)[None, :]
+    xyz = np.where(ok[..., None], filtered.xyz_m[rows][:, p][:, cols], 0.0)
+    for j in range(len(kp.joint_names)):
+        xyz[:, j], ok[:, j] = fill_gaps(xyz[:, j], ok[:, j], max_gap)
+    conf = np.where(ok, np.clip(filtered.confidence[rows][:, p][:, cols], 0.0, 1.0), 0.0)
+    return Body(pid, kp.joint_names, xyz, ok, conf, float(kp.fps))
+
+
 def _raw_wrists(raw: Keypoints3D | None, kp: Keypoints3D, pid: int) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Hand -> (frames, 3) raw wrist positions on ``kp``'s frames, their validity and their
     view counts (empty without a raw result holding that athlete)."""
-    if raw is None or pid not in raw.person_ids.tolist():
+    if raw is None or pid not in raw.person_ids.tolist() or raw.n_frames == 0:
         return {}
     p = raw.person_index(pid)
-    rows = np.searchsorted(raw.frame_indices, kp.frame_indices)
-    rows_c = np.minimum(rows, raw.n_frames - 1)
-    same = (rows < raw.n_frames) & (raw.frame_indices[rows_c] == kp.frame_indices)
+    rows_c, same = _rows_on(raw, kp)
     out = {}
     for hand in ("left", "right"):
         if f"{hand}_wrist" in raw.joint_names:
@@ -86,14 +115,21 @@ def _raw_wrists(raw: Keypoints3D | None, kp: Keypoints3D, pid: int) -> dict[str,
 
 def _punches_of(me: Body, opp: Body | None, R: np.ndarray, r_ok: np.ndarray, stance_codes: np.ndarray,
                 cfg: AnalyzeConfig, physics: PhysicsResult | None, frames: np.ndarray, clinch: np.ndarray,
-                raw: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]) -> list[_Punch]:  # fmt: skip
+                raw: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], motion: Body | None) -> list[_Punch]:  # fmt: skip
     """The punches of ``me`` at ``opp`` (facing frames ``R``, valid ``r_ok``); ``raw``: hand ->
-    raw wrist track for the speeds."""
+    raw wrist track for the speeds; ``motion``: the same athlete on the filtered triangulation,
+    where punches the fit flattened are looked for (``motion``), or None."""
     need = [me.names.index(j) for j in REQUIRED_JOINTS]
     out: list[_Punch] = []
+    Rm, rm_ok = facing_frames(motion, opp) if motion is not None else (R, r_ok)
     for hand in ("left", "right"):
         h = hand_track(me, R, r_ok, hand, cfg.punch)
-        for d in detect(me, h, cfg.punch, clinch):
+        found = detect(me, h, cfg.punch, clinch)
+        if motion is not None and cfg.punch.flattened:
+            hm = hand_track(motion, Rm, rm_ok, hand, cfg.punch)
+            found = sorted(found + flattened_punches(motion, hm, me, h, raw.get(hand), cfg.punch, clinch),
+                           key=lambda d: d.peak)  # fmt: skip
+        for d in found:
             speed = d.peak_speed_mps
             if cfg.punch.speed_source == "raw" and hand in raw:
                 measured = raw_peak_speed(*raw[hand], d.start, d.peak, me.fps)
@@ -160,7 +196,8 @@ def run(inp: AnalyzeInputs, cfg: AnalyzeConfig = AnalyzeConfig()) -> AnalyzeOutp
         hip, position_ok[:, i] = me.point("mid:left_hip+right_hip")
         position[:, i] = np.where(position_ok[:, i, None], hip[:, :2], 0.0)
         raw = _raw_wrists(inp.raw, kp, me.person_id)
-        punches += _punches_of(me, opps[i], R, r_ok, stance[:, i], cfg, inp.physics, frames, clinch, raw)
+        motion = _motion_body(inp.filtered, kp, me.person_id, cfg.punch.max_gap_frames)
+        punches += _punches_of(me, opps[i], R, r_ok, stance[:, i], cfg, inp.physics, frames, clinch, raw, motion)
     punches.sort(key=lambda p: (p.peak, p.person))
     by_id = {b.person_id: b for b in bs}
     evades: list[tuple[int, defence.Evade, int]] = []
