@@ -14,7 +14,9 @@ STAGES = ("detect2d", "track", "associate", "triangulate", "analyze")
 
 
 def test_analyze_is_registered_between_physics_and_evaluate() -> None:
-    assert STAGE_ORDER.index("physics") + 1 == STAGE_ORDER.index("analyze") == STAGE_ORDER.index("evaluate") - 1
+    assert (
+        STAGE_ORDER.index("physics") + 1 == STAGE_ORDER.index("analyze") == STAGE_ORDER.index("evaluate") - 1
+    )
 
 
 def test_analyze_step_writes_events_and_series(tmp_path: Path) -> None:
@@ -32,3 +34,44 @@ def test_analyze_step_writes_events_and_series(tmp_path: Path) -> None:
     (s / "session.json").write_text(json.dumps(cfg))
     assert stage_status(s) == {**{k: "fresh" for k in STAGES[:-1]}, "analyze": "stale"}
     assert [r.action for r in run(s)] == ["skipped"] * 4 + ["ran"]
+
+
+def test_the_flattened_option_hands_the_filtered_triangulation_to_the_stage(
+    tmp_path: Path, monkeypatch
+) -> None:
+    """With ``punch.flattened`` the step loads the filtered triangulation beside the analysed
+    fit; without it, it does not (a stand-in context whose fit is the filtered result)."""
+    from types import SimpleNamespace
+
+    import pipeline.runner.steps.analyze as step
+    from pipeline.artifacts import ArtifactStore
+    from pipeline.stages.analyze import AnalyzeConfig
+    from pipeline.stages.analyze.config import PunchConfig
+
+    s = write_tiny_session(tmp_path / "s", stages=STAGES, n_frames=30)
+    run(s)
+    store = ArtifactStore(s)
+    artifacts = {
+        "fit/keypoints3d.npz": ("triangulate", "keypoints3d"),
+        "triangulate/keypoints3d.npz": ("triangulate", "keypoints3d"),
+        "triangulate/raw.npz": ("triangulate", "raw"),
+    }
+    ctx = SimpleNamespace(
+        session=SimpleNamespace(stages=list(STAGES) + ["fit"]),
+        annotations=[],
+        metrics={},
+        session_dir=s,
+        has=lambda st, f: f"{st}/{f}" in artifacts,
+        load=lambda st, art, cls: store.load(*artifacts[f"{st}/{art}.npz"], cls),
+    )
+    seen: list = []
+    real = step.run
+    monkeypatch.setattr(step, "run", lambda inputs, cfg: seen.append(inputs) or real(inputs, cfg))
+    step._execute(ctx, AnalyzeConfig(punch=PunchConfig(flattened=True)))
+    assert (
+        ctx.metrics["source"] == "fit"
+        and seen[-1].filtered is not None
+        and seen[-1].filtered.source == "filtered"
+    )
+    step._execute(ctx, AnalyzeConfig())
+    assert seen[-1].filtered is None

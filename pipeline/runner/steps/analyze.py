@@ -33,7 +33,11 @@ def _execute(ctx: StageContext, cfg: AnalyzeConfig) -> dict[str, Any]:
     kp = ctx.load(stage, art, Keypoints3D)
     physics = ctx.load("physics", "result", PhysicsResult) if name == "physics" and ctx.has("physics", "result.npz") else None
     raw = ctx.load(*RESULT_ARTIFACTS["raw"], Keypoints3D) if ctx.has(*_file("raw")) else None
-    out = run(AnalyzeInputs(keypoints=kp, physics=physics, raw=raw, corrections=tuple(ctx.annotations)), cfg)
+    # The filtered triangulation is where punches the fit flattened are looked for (opt-in).
+    use_filtered = cfg.punch.flattened and name != "filtered" and ctx.has(*_file("filtered"))
+    filtered = ctx.load(*RESULT_ARTIFACTS["filtered"], Keypoints3D) if use_filtered else None
+    inputs = AnalyzeInputs(keypoints=kp, physics=physics, raw=raw, filtered=filtered, corrections=tuple(ctx.annotations))
+    out = run(inputs, cfg)
     ctx.metrics.update(out.stats)
     for line in out.stats.get("corrections_unmatched_edits", []):
         log.warning("%s: analyze: edit not applied: %s", ctx.session_dir, line)
@@ -53,5 +57,5 @@ SPEC = StageSpec(
     config_cls=AnalyzeConfig,
     execute=_execute,
     consumes_annotations=True,
-    description="boxing analytics: punches (type, speed, outcome), slips and ducks, clinches, stance, work rate",
+    description="boxing analytics: punches (type, speed, outcome), slips, ducks, blocks and parries, clinches, stance, work rate",
 )
