@@ -20,30 +20,14 @@ from pipeline.backends.mujoco.ilqr import (  # noqa: E402
     optimise,
     rollout,
 )
-from tests.backends.test_ilqr import TipCost  # noqa: E402
+from tests.backends.test_ilqr import ARM_XML, TipCost  # noqa: E402
 
 # An arm that hits the floor: contacts make the derivatives depend on the state.
-ARM_FLOOR_XML = """
-<mujoco>
-  <option timestep="0.01" integrator="implicitfast"/>
-  <worldbody>
-    <geom type="plane" size="2 2 0.1"/>
-    <body name="upper" pos="0 0 0.5">
-      <joint name="shoulder" type="hinge" axis="0 1 0" damping="0.2"/>
-      <geom type="capsule" fromto="0 0 0 0.4 0 0" size="0.04"/>
-      <body name="lower" pos="0.4 0 0">
-        <joint name="elbow" type="hinge" axis="0 1 0" damping="0.2"/>
-        <geom type="capsule" fromto="0 0 0 0.35 0 0" size="0.035"/>
-        <site name="tip" pos="0.35 0 0"/>
-      </body>
-    </body>
-  </worldbody>
-  <actuator>
-    <motor joint="shoulder" ctrlrange="-20 20"/>
-    <motor joint="elbow" ctrlrange="-10 10"/>
-  </actuator>
-</mujoco>
-"""
+ARM_FLOOR_XML = (
+    ARM_XML.replace('timestep="0.02"', 'timestep="0.01"')
+    .replace("<worldbody>", '<worldbody>\n    <geom type="plane" size="2 2 0.1"/>')
+    .replace('pos="0 0 1"', 'pos="0 0 0.5"')
+)
 SUBSTEPS = 2
 
 
