@@ -4,6 +4,8 @@ problem flags, written with the real schema classes and ``ArtifactStore.write``.
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -153,3 +155,14 @@ def _qpos(n_frames: int) -> np.ndarray:
     q[:, 9] = 1.0
     q[:, 10] = 1.0
     return q
+
+
+def wait_for(cond: Callable[[], object], timeout_s: float) -> bool:
+    """Poll ``cond`` every 20 ms until it is truthy (True) or ``timeout_s`` seconds pass (False)."""
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end:
+        if cond():
+            return True
+        time.sleep(0.02)
+    return bool(cond())
+

@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
+from functools import partial
 
 import pytest
 import viser
 
 from server.viewer_bench import WsClient, open_client
-from tests.webui.fixtures import build_session
+from tests.webui.fixtures import build_session, wait_for
 from webui.api_client import ApiClient
 from webui.app import NOT_SIGNED_IN, ViewerApp
 from webui.client_view import ClientView
@@ -55,13 +56,7 @@ def _join(app: ViewerApp, port: int, token: str | None) -> tuple[WsClient, Clien
     return c, None
 
 
-def _wait(cond, timeout_s: float = 10.0) -> bool:  # noqa: ANN001
-    t_end = time.monotonic() + timeout_s
-    while time.monotonic() < t_end:
-        if cond():
-            return True
-        time.sleep(0.05)
-    return False
+_wait = partial(wait_for, timeout_s=10.0)
 
 
 def test_each_client_has_its_own_frame_play_and_role(viewer: tuple[ViewerApp, int]) -> None:

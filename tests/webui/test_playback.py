@@ -7,13 +7,14 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import pytest
 import viser
 
-from tests.webui.fixtures import build_session
+from tests.webui.fixtures import build_session, wait_for
 from webui.app import ViewerApp
 from webui.launcher import free_port
 from webui.playback import PLAY_IMAGE_SCALE, PlaybackClock
@@ -52,13 +53,7 @@ def test_playback_clock_follows_time_and_wraps() -> None:
         PlaybackClock(0.0, 10)
 
 
-def _wait(cond: Any, timeout_s: float = 15.0) -> bool:
-    t_end = time.monotonic() + timeout_s
-    while time.monotonic() < t_end:
-        if cond():
-            return True
-        time.sleep(0.01)
-    return False
+_wait = partial(wait_for, timeout_s=15.0)
 
 
 @pytest.fixture

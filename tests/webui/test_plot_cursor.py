@@ -9,6 +9,7 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,7 @@ import pytest
 import viser
 
 from server.viewer_bench import VISER_PROTOCOL, WsClient, camera_message
-from tests.webui.fixtures import build_session
+from tests.webui.fixtures import build_session, wait_for
 from webui.app import ViewerApp
 from webui.client_view import ClientView
 from webui.launcher import free_port
@@ -34,13 +35,7 @@ class FakeClock:
         return self.t
 
 
-def _wait(cond: Any, timeout_s: float = 15.0) -> bool:
-    t_end = time.monotonic() + timeout_s
-    while time.monotonic() < t_end:
-        if cond():
-            return True
-        time.sleep(0.01)
-    return False
+_wait = partial(wait_for, timeout_s=15.0)
 
 
 def _cursors(view: ClientView) -> list[float | None]:
@@ -163,7 +158,7 @@ def test_two_clients_keep_their_own_cursors(tmp_path: Path) -> None:
     fps = app.data.fps
     ca, cb = _connect(port), _connect(port)
     try:
-        assert _wait(lambda: len(app.clients) == 2 and "Frame" in ca.uuids and "Frame" in cb.uuids, 60)
+        assert _wait(lambda: len(app.clients) == 2 and "Frame" in ca.uuids and "Frame" in cb.uuids, timeout_s=60)
         assert _wait(lambda: len(ca.charts) == len(cb.charts) == 4)
         assert set(ca.charts).isdisjoint(cb.charts)  # each client has its own charts
         ca.set_value("Frame", 30)  # as each browser moves its slider

@@ -5,7 +5,7 @@ artifacts are loaded, and an identity renamed / recoloured through the API reach
 
 from __future__ import annotations
 
-import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +14,7 @@ import viser
 
 from pipeline.runner.registry import STAGE_ORDER
 from tests.webui.conftest import ApiEnv, api_client
+from tests.webui.fixtures import wait_for
 from webui.app import ViewerApp
 from webui.colors import hex_to_rgb
 from webui.jobs import job_fraction, job_summary
@@ -113,11 +114,7 @@ def server():  # noqa: ANN201
     s.stop()
 
 
-def _wait(cond, timeout_s: float = 30.0) -> bool:  # noqa: ANN001
-    t_end = time.monotonic() + timeout_s
-    while not cond() and time.monotonic() < t_end:
-        time.sleep(0.1)
-    return bool(cond())
+_wait = partial(wait_for, timeout_s=30.0)
 
 
 def test_a_swap_marks_layers_stale_until_the_rerun_is_loaded(api_env: ApiEnv, server: viser.ViserServer) -> None:
@@ -172,7 +169,7 @@ def test_identity_rename_and_colour_reach_an_open_viewer(api_env: ApiEnv, server
         r = api_env.client.put(f"/api/sessions/{api_env.session_id}/identities/0", json={"name": "Rojo", "color": "#10c040"},
                                headers={"Authorization": f"Bearer {api_env.tokens['annotator']}"})  # fmt: skip
         assert r.status_code == 200, r.text
-        assert _wait(lambda: "Rojo" in app.header.content, 5.0), app.header.content
+        assert _wait(lambda: "Rojo" in app.header.content, timeout_s=5.0), app.header.content
         assert "Red" not in app.header.content
         assert a.assign[0].label == "Assign to Rojo" and a.swap.label == "Swap Rojo and Blue from this frame"
         assert _colours(app, 0) == {(0x10, 0xC0, 0x40)}
