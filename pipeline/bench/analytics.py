@@ -5,9 +5,10 @@ For each seed and camera count the bout is generated with the varied script
 outcomes, feints, counters; ``pipeline.synthetic.combos``), identities come from ground
 truth (as in ``bench fit``, to isolate the 3D and the analytics from association errors),
 then triangulation and the fit run and the analytics run on the fit's keypoints, with
-the raw triangulation for the glove speeds and the filtered one for the punches the fit
-flattened (``pipeline.stages.analyze.motion``) (the physics stage
-is left out: minutes per bout). Scores (``pipeline.bench.analytics_score``):
+the raw triangulation for the glove speeds, the filtered one for the punches the fit
+flattened (``pipeline.stages.analyze.motion``) and the bout's 2D tracks with their true
+identities for the 2D evidence of such punches (``pipeline.stages.analyze.evidence2d``) (the
+physics stage is left out: minutes per bout). Scores (``pipeline.bench.analytics_score``):
 punch precision / recall (strikes matched within 3 frames, same athlete and hand), type
 and outcome accuracy among the matched, peak-speed error, clinch-frame F1, and the
 feints taken for punches, and the blocks' precision / recall (the defender's ``block``
@@ -33,6 +34,8 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.bench.analytics_score import rates, score
+from pipeline.schema.association import Association
+from pipeline.schema.detections import Tracks2D
 from pipeline.schema.keypoints3d import Keypoints3D
 
 log = logging.getLogger(__name__)
@@ -143,9 +146,21 @@ def pose2sim_session(pose2sim: str = FOOTAGE) -> tuple[Path | None, str]:
     return folder, ""
 
 
-def pose2sim_row(session_dir: str | Path) -> dict[str, Any] | None:
+def _config(views: bool | None) -> Any:
+    """The analyze config of the bench: the stage's defaults, with the 2D evidence
+    (``ViewEvidenceConfig.enabled``) set when ``views`` is not None."""
+    from dataclasses import replace
+
+    from pipeline.stages.analyze import AnalyzeConfig
+
+    cfg = AnalyzeConfig()
+    return cfg if views is None else replace(cfg, views=replace(cfg.views, enabled=bool(views)))
+
+
+def pose2sim_row(session_dir: str | Path, views: bool | None = None) -> dict[str, Any] | None:
     """Punches found on a session's 3D result (fit, else physics, else filtered; speeds from its
-    raw triangulation); None when it has none of them."""
+    raw triangulation; 2D evidence from its track and associate artifacts when present, as
+    ``views`` says: ``_config``); None when it has none of them."""
     from pipeline.artifacts import ArtifactStore
     from pipeline.io.session_rig import session_rig
     from pipeline.schema.session import SessionConfig
@@ -158,11 +173,16 @@ def pose2sim_row(session_dir: str | Path) -> dict[str, Any] | None:
     raw = store.load(raw_stage, raw_art, Keypoints3D) if store.has(raw_stage, f"{raw_art}.npz") else None
     f_stage, f_art = RESULT_ARTIFACTS["filtered"]
     filtered = store.load(f_stage, f_art, Keypoints3D) if store.has(f_stage, f"{f_art}.npz") else None
+    tracks, assoc = None, None
+    if store.has("track", "tracks.npz") and store.has("associate", "association.npz"):
+        tracks = store.load("track", "tracks", Tracks2D)
+        assoc = store.load("associate", "association", Association)
     for name in ("fit", "physics", "filtered"):
         stage, art = RESULT_ARTIFACTS[name]
         if store.has(stage, f"{art}.npz"):
             kp = store.load(stage, art, Keypoints3D)
-            ev = analyze(AnalyzeInputs(kp, raw=raw, filtered=filtered)).events
+            inp = AnalyzeInputs(kp, raw=raw, filtered=filtered, tracks=tracks, association=assoc)
+            ev = analyze(inp, _config(views)).events
             minutes = kp.n_frames / kp.fps / 60.0
             return {
                 "data": f"Pose2Sim sample ({name})",
@@ -182,6 +202,7 @@ def run_bench(
     sources: str = "fit",
     cache_dir: str = "",
     pose2sim: str = FOOTAGE,
+    views: bool | None = None,
 ) -> list[dict[str, Any]]:
     """Rows: one per (3D source, camera count) over ``seeds``, then the Pose2Sim row.
 
@@ -189,7 +210,9 @@ def run_bench(
     the 3D results there and reuse them (for tuning; they are keyed by seed, cameras,
     frames and source only, so empty it when the generator changes). ``pose2sim``: the
     session of the last row: ``"footage"`` = ``bench footage``'s, run up to the fit when
-    missing or stale; a session folder; "" skips the row (``pose2sim_session``).
+    missing or stale; a session folder; "" skips the row (``pose2sim_session``). ``views``:
+    None keeps the analyze stage's default for the 2D evidence of flattened punches, True /
+    False turns it on / off (``ViewEvidenceConfig.enabled``).
     """
     from pipeline.stages.analyze import AnalyzeInputs
     from pipeline.stages.analyze import run as analyze
@@ -201,6 +224,7 @@ def run_bench(
         raise ValueError(f"bench analytics: sources must be among fit, filtered, gt; got {sources!r}")
     cams = (cameras,) if isinstance(cameras, int) else tuple(cameras)
     cache = Path(cache_dir) if cache_dir else None
+    cfg = _config(views)
     p2s_dir, why = pose2sim_session(pose2sim) if pose2sim else (None, "pose2sim is empty")
     if p2s_dir is None:  # before the synthetic bouts: say it now, not after minutes
         log.warning("bench analytics: Pose2Sim row skipped: %s", why)
@@ -225,10 +249,14 @@ def run_bench(
                     if src not in wanted:
                         continue
                 # Speeds from the raw triangulation (``PunchConfig.speed_source``), punches the fit
-                # flattened from the filtered one (``PunchConfig.flattened``); on ground truth neither.
+                # flattened from the filtered one (``PunchConfig.flattened``) and the 2D tracks
+                # (``AnalyzeConfig.views``); on ground truth none of them.
                 real = src != "gt"
-                inp = AnalyzeInputs(kp, raw=tri["raw"] if real else None, filtered=tri["filtered"] if real else None)
-                s = score(bout.truth, analyze(inp).events)
+                inp = AnalyzeInputs(
+                    kp, raw=tri["raw"] if real else None, filtered=tri["filtered"] if real else None,
+                    tracks=bout.tracks if real else None, association=bout.gt_association() if real else None,
+                )  # fmt: skip
+                s = score(bout.truth, analyze(inp, cfg).events)
                 tot = totals.setdefault((src, n_cams), {k: 0 for k in COUNT_KEYS} | {"speed_err_max": 0.0})
                 for k in COUNT_KEYS:
                     tot[k] += s[k]
@@ -246,7 +274,7 @@ def run_bench(
              "false_per_min": false / minutes if minutes else float("nan")}  # fmt: skip
         )
     if p2s_dir is not None:
-        row = pose2sim_row(p2s_dir)
+        row = pose2sim_row(p2s_dir, views)
         if row is not None:
             rows.append(row)
     return rows

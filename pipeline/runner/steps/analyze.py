@@ -1,7 +1,9 @@
 """analyze step: events.npz + series.npz from the latest 3D result (physics, else fit,
 else filtered; ``AnalyzeConfig.source`` can pin one), with the annotators' event edits
 (``correct_event``, ``add_event``, ``delete_event``) applied; the edits that found no event are
-counted in the metric ``corrections_unmatched`` and listed in ``corrections_unmatched_edits``."""
+counted in the metric ``corrections_unmatched`` and listed in ``corrections_unmatched_edits``.
+With ``AnalyzeConfig.views.enabled`` the stage also gets the 2D tracks and their association
+(the track and associate artifacts), where punches the fit flattened are confirmed."""
 
 from __future__ import annotations
 
@@ -10,6 +12,8 @@ from typing import Any
 
 from pipeline.runner.registry import STAGE_ORDER
 from pipeline.runner.spec import StageContext, StageSpec
+from pipeline.schema.association import Association
+from pipeline.schema.detections import Tracks2D
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import PhysicsResult
 from pipeline.schema.sources import RESULT_ARTIFACTS
@@ -36,7 +40,14 @@ def _execute(ctx: StageContext, cfg: AnalyzeConfig) -> dict[str, Any]:
     # The filtered triangulation is where punches the fit flattened are looked for (opt-in).
     use_filtered = cfg.punch.flattened and name != "filtered" and ctx.has(*_file("filtered"))
     filtered = ctx.load(*RESULT_ARTIFACTS["filtered"], Keypoints3D) if use_filtered else None
-    inputs = AnalyzeInputs(keypoints=kp, physics=physics, raw=raw, filtered=filtered, corrections=tuple(ctx.annotations))
+    # The 2D tracks of every view confirm punches the fit flattened (opt-in).
+    use_views = cfg.views.enabled and ctx.has("track", "tracks.npz") and ctx.has("associate", "association.npz")
+    tracks = ctx.load("track", "tracks", Tracks2D) if use_views else None
+    assoc = ctx.load("associate", "association", Association) if use_views else None
+    inputs = AnalyzeInputs(
+        keypoints=kp, physics=physics, raw=raw, filtered=filtered, corrections=tuple(ctx.annotations),
+        tracks=tracks, association=assoc,
+    )  # fmt: skip
     out = run(inputs, cfg)
     ctx.metrics.update(out.stats)
     for line in out.stats.get("corrections_unmatched_edits", []):
@@ -52,7 +63,7 @@ def _file(name: str) -> tuple[str, str]:
 
 SPEC = StageSpec(
     name="analyze",
-    deps=("triangulate",),
+    deps=("triangulate", "associate", "track"),
     optional_deps=("fit", "physics"),
     config_cls=AnalyzeConfig,
     execute=_execute,

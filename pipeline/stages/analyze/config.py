@@ -111,6 +111,42 @@ class PunchConfig:
 
 
 @dataclass(frozen=True)
+class ViewEvidenceConfig:
+    """Punches the fit flattened, confirmed by the 2D tracks of each camera
+    (``pipeline.stages.analyze.evidence2d``): a weak 3D excursion that one view shows as a
+    fast, long excursion of the wrist away from the neck."""
+
+    enabled: bool = False
+    """Look for such punches when the stage gets the 2D tracks and their association."""
+    min_excursion_3d_m: float = 0.12
+    """Smallest 3D excursion of the fist from its guard that is looked at (m, > 0; the punch
+    rules' own threshold is ``PunchConfig.min_excursion_m``)."""
+    min_excursion_m: float = 0.15
+    """Smallest projected excursion of the wrist from its guard in one view over the way out
+    and back (m across the line of sight, > 0)."""
+    min_speed_mps: float = 4.0
+    """Smallest projected speed of the wrist relative to the neck in that view on the way out
+    (m/s, > 0)."""
+    min_conf: float = 0.1
+    """2D keypoints below this confidence are not used, in [0, 1]."""
+    lift_speed: bool = True
+    """With ``PunchConfig.speed_source="raw"``, where the raw triangulation does not measure a
+    punch's peak speed (one view saw the wrist), raise it to the fastest view's projected wrist
+    speed, kept within ``PunchConfig.raw_speed_max_ratio`` of the analysed speed
+    (``evidence2d.view_peak_speed``)."""
+    scale_window_s: float = 1.5
+    """Span of the running median of the athlete's image torso length that sets each view's
+    metres per pixel (s, > 0)."""
+
+    def __post_init__(self) -> None:
+        _positive("ViewEvidenceConfig", min_excursion_3d_m=self.min_excursion_3d_m,
+                  min_excursion_m=self.min_excursion_m, min_speed_mps=self.min_speed_mps,
+                  scale_window_s=self.scale_window_s)  # fmt: skip
+        if not 0.0 <= self.min_conf <= 1.0:
+            raise ValueError(f"ViewEvidenceConfig.min_conf must be in [0, 1], got {self.min_conf}")
+
+
+@dataclass(frozen=True)
 class TypeConfig:
     """Punch type rules, on the fist's path from the guard to the strike in the boxer's
     facing frame (x towards the opponent, y to his left, z up)."""
@@ -243,6 +279,7 @@ class AnalyzeConfig:
     source: AnalyzeSource = "auto"
     """3D result analysed: ``auto`` = physics, else fit, else filtered (``pipeline.schema.sources``)."""
     punch: PunchConfig = field(default_factory=PunchConfig)
+    views: ViewEvidenceConfig = field(default_factory=ViewEvidenceConfig)
     types: TypeConfig = field(default_factory=TypeConfig)
     outcome: OutcomeConfig = field(default_factory=OutcomeConfig)
     defence: DefenceConfig = field(default_factory=DefenceConfig)

@@ -1,7 +1,8 @@
 """analyze: boxing analytics on a 3D result (pure: data in, data out).
 
 A readable chain: the athletes' joint tracks (``body``) -> per fist, the punches
-(``punches``; and those the fit flattened, from the filtered triangulation: ``motion``) ->
+(``punches``; and those the fit flattened, from the filtered triangulation: ``motion``, or
+confirmed by the 2D tracks of each view: ``evidence2d``) ->
 their type (``classify``) and outcome (``outcome``) -> the defender's slips and ducks and the clinches (``defence``), blocks and parries (``blocks``) -> the
 per-frame series (``ring``, ``workrate``).
 """
@@ -16,9 +17,11 @@ import numpy as np
 from pipeline.evaluate.glove_contact import glove_gaps
 from pipeline.schema.analytics import AthleteSeries, BoutEvents
 from pipeline.schema.annotations import Annotation
+from pipeline.schema.association import Association
+from pipeline.schema.detections import Tracks2D
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import PhysicsResult
-from pipeline.stages.analyze import blocks, classify, defence, outcome, ring
+from pipeline.stages.analyze import blocks, classify, defence, evidence2d, outcome, ring
 from pipeline.stages.analyze.body import Body, bodies, facing_frames, fill_gaps, opponent_of
 from pipeline.stages.analyze.config import AnalyzeConfig
 from pipeline.stages.analyze.corrections import Athlete, apply_corrections
@@ -41,13 +44,28 @@ class AnalyzeInputs:
     filtered triangulation, where punches the fit flattened are looked for
     (``PunchConfig.flattened``, ``motion``; unused when it is the analysed result itself);
     corrections: annotators' event edits, applied in order after detection
-    (``corrections.apply_corrections``; other edit kinds are ignored)."""
+    (``corrections.apply_corrections``; other edit kinds are ignored); tracks and association:
+    the 2D tracks of every view and their athletes, where punches the fit flattened are
+    confirmed (``AnalyzeConfig.views``, ``evidence2d``; both or neither, one association row
+    per track row, else ``ValueError``)."""
 
     keypoints: Keypoints3D
     physics: PhysicsResult | None = None
     raw: Keypoints3D | None = None
     filtered: Keypoints3D | None = None
     corrections: tuple[Annotation, ...] = ()
+    tracks: Tracks2D | None = None
+    association: Association | None = None
+
+    def __post_init__(self) -> None:
+        if (self.tracks is None) != (self.association is None):
+            raise ValueError("AnalyzeInputs: tracks and association go together (got only one of them)")
+        if self.tracks is not None and self.association is not None:
+            if self.association.person_of_det.shape[0] != self.tracks.n_dets:
+                raise ValueError(
+                    f"AnalyzeInputs: the association has {self.association.person_of_det.shape[0]} rows for "
+                    f"{self.tracks.n_dets} track rows (it must come from the same tracks)"
+                )
 
 
 @dataclass(frozen=True)
@@ -113,12 +131,33 @@ def _raw_wrists(raw: Keypoints3D | None, kp: Keypoints3D, pid: int) -> dict[str,
     return out
 
 
+def _view_signals(inp: AnalyzeInputs, kp: Keypoints3D, me: Body, cfg: AnalyzeConfig) -> dict[str, evidence2d.ViewSignals]:
+    """Hand -> the athlete's wrist motion in every view (``evidence2d``); empty when the views
+    are off, the stage has no 2D tracks, or the 3D torso is never estimated."""
+    if not cfg.views.enabled or inp.tracks is None or inp.association is None:
+        return {}
+    sh, sok = me.point("mid:left_shoulder+right_shoulder")
+    hip, hok = me.point("mid:left_hip+right_hip")
+    if not (sok & hok).any():
+        return {}
+    torso_m = float(np.median(np.linalg.norm(sh - hip, axis=1)[sok & hok]))
+    pv = evidence2d.person_views(inp.tracks, inp.association, me.person_id, kp.frame_indices, cfg.views.min_conf)
+    m_per_px = evidence2d.image_scale_m_per_px(pv, torso_m, me.fps, cfg.views.scale_window_s)
+    p = cfg.punch
+    return {
+        hand: evidence2d.view_signals(pv, hand, m_per_px, me.fps, p.guard_window_s, p.rest_speed_mps, p.max_gap_frames)
+        for hand in ("left", "right")
+    }
+
+
 def _punches_of(me: Body, opp: Body | None, R: np.ndarray, r_ok: np.ndarray, stance_codes: np.ndarray,
                 cfg: AnalyzeConfig, physics: PhysicsResult | None, frames: np.ndarray, clinch: np.ndarray,
-                raw: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], motion: Body | None) -> list[_Punch]:  # fmt: skip
+                raw: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], motion: Body | None,
+                views: dict[str, evidence2d.ViewSignals]) -> list[_Punch]:  # fmt: skip
     """The punches of ``me`` at ``opp`` (facing frames ``R``, valid ``r_ok``); ``raw``: hand ->
     raw wrist track for the speeds; ``motion``: the same athlete on the filtered triangulation,
-    where punches the fit flattened are looked for (``motion``), or None."""
+    where punches the fit flattened are looked for (``motion``), or None; ``views``: hand -> the
+    wrist's motion per view, where such punches are confirmed (``evidence2d``), or empty."""
     need = [me.names.index(j) for j in REQUIRED_JOINTS]
     out: list[_Punch] = []
     Rm, rm_ok = facing_frames(motion, opp) if motion is not None else (R, r_ok)
@@ -129,10 +168,15 @@ def _punches_of(me: Body, opp: Body | None, R: np.ndarray, r_ok: np.ndarray, sta
             hm = hand_track(motion, Rm, rm_ok, hand, cfg.punch)
             found = sorted(found + flattened_punches(motion, hm, me, h, raw.get(hand), cfg.punch, clinch),
                            key=lambda d: d.peak)  # fmt: skip
+        if hand in views:
+            found = sorted(found + evidence2d.view_punches(me, h, views[hand], found, cfg.punch, cfg.views, clinch),
+                           key=lambda d: d.peak)  # fmt: skip
         for d in found:
             speed = d.peak_speed_mps
-            if cfg.punch.speed_source == "raw" and hand in raw:
-                measured = raw_peak_speed(*raw[hand], d.start, d.peak, me.fps)
+            if cfg.punch.speed_source == "raw":
+                measured = raw_peak_speed(*raw[hand], d.start, d.peak, me.fps) if hand in raw else None
+                if measured is None and hand in views and cfg.views.lift_speed:
+                    measured = evidence2d.view_peak_speed(views[hand], d.start, d.peak)
                 if measured is not None:
                     speed = float(np.clip(measured, speed, cfg.punch.raw_speed_max_ratio * speed))
             target, result = "none", "missed"
@@ -197,7 +241,8 @@ def run(inp: AnalyzeInputs, cfg: AnalyzeConfig = AnalyzeConfig()) -> AnalyzeOutp
         position[:, i] = np.where(position_ok[:, i, None], hip[:, :2], 0.0)
         raw = _raw_wrists(inp.raw, kp, me.person_id)
         motion = _motion_body(inp.filtered, kp, me.person_id, cfg.punch.max_gap_frames)
-        punches += _punches_of(me, opps[i], R, r_ok, stance[:, i], cfg, inp.physics, frames, clinch, raw, motion)
+        views = _view_signals(inp, kp, me, cfg)
+        punches += _punches_of(me, opps[i], R, r_ok, stance[:, i], cfg, inp.physics, frames, clinch, raw, motion, views)
     punches.sort(key=lambda p: (p.peak, p.person))
     by_id = {b.person_id: b for b in bs}
     evades: list[tuple[int, defence.Evade, int]] = []
