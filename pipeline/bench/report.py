@@ -6,7 +6,7 @@ writes them) into a markdown table with the columns that matter for that bench;
 markers ``<!-- bench:NAME -->`` and ``<!-- /bench:NAME -->`` with it. From the shell::
 
     python -m pipeline.bench.report README.md shelf=shelf.json footage=footage.json \\
-        fit=fit.json physics=physics.json triangulation=triangulation.json
+        fit=fit.json physics=physics.json triangulation=triangulation.json analytics=analytics.json
 
 Pure string work (no numpy, no pipeline imports), so it runs anywhere. Every problem is a
 ``ValueError`` naming the file: a missing or repeated marker, a JSON file that cannot be
@@ -184,6 +184,21 @@ TRIANGULATION = (
 """``pipeline.bench.triangulation`` rows (cornerman and the baselines per scenario)."""
 
 
+ANALYTICS = (
+    col("data", "data", "{}", text=True),
+    col("cameras", "cameras", "{}"),
+    col("precision", "precision", "{:.3f}"),
+    col("recall", "recall", "{:.3f}"),
+    col("type acc. %", "type_acc_pct", "{:.1f}"),
+    col("outcome acc. %", "outcome_acc_pct", "{:.1f}"),
+    col("peak-speed error %", "speed_err_pct", "{:.1f}"),
+    col("clinch-frame F1", "clinch_f1", "{:.3f}"),
+    col("block precision / recall", "block_precision", "{:.3f}", "block_recall", "{:.3f}"),
+    col("false punches / min", "false_per_min", "{:.1f}"),
+)
+"""``pipeline.bench.analytics`` rows (synthetic bouts per camera count, the Pose2Sim sample)."""
+
+
 def _shelf(rows: Sequence[Row]) -> tuple[list[Row], list[str]]:
     return [r for r in rows if r.get("kind") != "timing"], []
 
@@ -222,6 +237,7 @@ TABLES: dict[str, tuple[tuple[Column, ...], Callable[[Sequence[Row]], tuple[list
     "fit": (FIT, _all),
     "physics": (PHYSICS, _physics),
     "triangulation": (TRIANGULATION, _all),
+    "analytics": (ANALYTICS, _all),
 }
 """Bench name -> (columns, row selection returning the rows shown and generated note lines)."""
 

@@ -52,7 +52,10 @@ def test_the_views_option_hands_the_tracks_to_the_stage(
     tracks, assoc = seen[-1].tracks, seen[-1].association
     assert tracks is not None and assoc is not None
     assert tracks.n_dets == assoc.person_of_det.shape[0] == store.load("track", "tracks", type(tracks)).n_dets
+    # The default (punches from the views off, the speed lift on) needs the tracks too.
     step._execute(ctx, AnalyzeConfig(views=ViewEvidenceConfig(enabled=False)))
+    assert seen[-1].tracks is not None and seen[-1].association is not None
+    step._execute(ctx, AnalyzeConfig(views=ViewEvidenceConfig(enabled=False, lift_speed=False)))
     assert seen[-1].tracks is None and seen[-1].association is None
 
 

@@ -145,6 +145,25 @@ def test_a_jab_the_fit_slowed_down_is_confirmed_by_the_views() -> None:
     assert left_jabs(AnalyzeInputs(keypoints(fit), tracks=slow, association=_association(slow)), ON) == []
 
 
+def test_the_default_lifts_the_speed_of_a_punch_the_rules_found_without_adding_punches() -> None:
+    # The fit's jab is whole but slow (out in 0.2 s); the cameras saw it out in 0.1 s. The
+    # default (``enabled`` off, ``lift_speed`` on) keeps the one punch and takes its speed from
+    # the fastest view; without the lift the fit's speed stays.
+    fit, tracks = _jab(1.0, 0.2), _project(_jab())
+    inp = AnalyzeInputs(keypoints(fit), tracks=tracks, association=_association(tracks))
+    lifted = run(inp, AnalyzeConfig()).events
+    kept = run(inp, AnalyzeConfig(views=ViewEvidenceConfig(lift_speed=False))).events
+    assert not AnalyzeConfig().views.enabled and AnalyzeConfig().views.lift_speed
+    assert lifted.punch_hand.tolist() == kept.punch_hand.tolist() == ["left"]
+    assert lifted.punch_peak_speed_mps[0] > 1.3 * kept.punch_peak_speed_mps[0]
+    # A slow view does not lower the fit's speed (the lift only raises it).
+    slow = _project(fit)
+    same = run(
+        AnalyzeInputs(keypoints(fit), tracks=slow, association=_association(slow)), AnalyzeConfig()
+    ).events
+    assert same.punch_peak_speed_mps[0] >= kept.punch_peak_speed_mps[0] - 1e-9
+
+
 def test_mismatched_inputs_are_refused() -> None:
     tracks = _project(_jab())
     short = Association(np.array([0, 1]), ("", ""), tracks.track_id[:-3].copy(), np.ones(tracks.n_dets - 3))

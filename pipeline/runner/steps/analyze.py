@@ -2,8 +2,8 @@
 else filtered; ``AnalyzeConfig.source`` can pin one), with the annotators' event edits
 (``correct_event``, ``add_event``, ``delete_event``) applied; the edits that found no event are
 counted in the metric ``corrections_unmatched`` and listed in ``corrections_unmatched_edits``.
-With ``AnalyzeConfig.views.enabled`` the stage also gets the 2D tracks and their association
-(the track and associate artifacts), where punches the fit flattened are confirmed."""
+With ``AnalyzeConfig.views`` on (the speed lift by default, punches from the views opt-in) the
+stage also gets the 2D tracks and their association (the track and associate artifacts)."""
 
 from __future__ import annotations
 
@@ -40,8 +40,9 @@ def _execute(ctx: StageContext, cfg: AnalyzeConfig) -> dict[str, Any]:
     # The filtered triangulation is where punches the fit flattened are looked for (opt-in).
     use_filtered = cfg.punch.flattened and name != "filtered" and ctx.has(*_file("filtered"))
     filtered = ctx.load(*RESULT_ARTIFACTS["filtered"], Keypoints3D) if use_filtered else None
-    # The 2D tracks of every view confirm punches the fit flattened (opt-in).
-    use_views = cfg.views.enabled and ctx.has("track", "tracks.npz") and ctx.has("associate", "association.npz")
+    # The 2D tracks of every view: the speed of punches the raw triangulation cannot measure,
+    # and (opt-in) punches the fit flattened.
+    use_views = (cfg.views.enabled or cfg.views.lift_speed) and ctx.has("track", "tracks.npz") and ctx.has("associate", "association.npz")
     tracks = ctx.load("track", "tracks", Tracks2D) if use_views else None
     assoc = ctx.load("associate", "association", Association) if use_views else None
     inputs = AnalyzeInputs(

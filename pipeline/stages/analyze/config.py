@@ -117,7 +117,8 @@ class ViewEvidenceConfig:
     fast, long excursion of the wrist away from the neck."""
 
     enabled: bool = False
-    """Look for such punches when the stage gets the 2D tracks and their association."""
+    """Look for such punches when the stage gets the 2D tracks and their association (off:
+    on held-out bouts it found none the rules kept; docs/design/analytics.md)."""
     min_excursion_3d_m: float = 0.12
     """Smallest 3D excursion of the fist from its guard that is looked at (m, > 0; the punch
     rules' own threshold is ``PunchConfig.min_excursion_m``)."""
@@ -133,7 +134,7 @@ class ViewEvidenceConfig:
     """With ``PunchConfig.speed_source="raw"``, where the raw triangulation does not measure a
     punch's peak speed (one view saw the wrist), raise it to the fastest view's projected wrist
     speed, kept within ``PunchConfig.raw_speed_max_ratio`` of the analysed speed
-    (``evidence2d.view_peak_speed``)."""
+    (``evidence2d.view_peak_speed``). Independent of ``enabled``: it needs the 2D tracks only."""
     scale_window_s: float = 1.5
     """Span of the running median of the athlete's image torso length that sets each view's
     metres per pixel (s, > 0)."""

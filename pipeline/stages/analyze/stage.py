@@ -132,9 +132,9 @@ def _raw_wrists(raw: Keypoints3D | None, kp: Keypoints3D, pid: int) -> dict[str,
 
 
 def _view_signals(inp: AnalyzeInputs, kp: Keypoints3D, me: Body, cfg: AnalyzeConfig) -> dict[str, evidence2d.ViewSignals]:
-    """Hand -> the athlete's wrist motion in every view (``evidence2d``); empty when the views
-    are off, the stage has no 2D tracks, or the 3D torso is never estimated."""
-    if not cfg.views.enabled or inp.tracks is None or inp.association is None:
+    """Hand -> the athlete's wrist motion in every view (``evidence2d``); empty when neither
+    use of the views is on, the stage has no 2D tracks, or the 3D torso is never estimated."""
+    if not (cfg.views.enabled or cfg.views.lift_speed) or inp.tracks is None or inp.association is None:
         return {}
     sh, sok = me.point("mid:left_shoulder+right_shoulder")
     hip, hok = me.point("mid:left_hip+right_hip")
@@ -168,7 +168,7 @@ def _punches_of(me: Body, opp: Body | None, R: np.ndarray, r_ok: np.ndarray, sta
             hm = hand_track(motion, Rm, rm_ok, hand, cfg.punch)
             found = sorted(found + flattened_punches(motion, hm, me, h, raw.get(hand), cfg.punch, clinch),
                            key=lambda d: d.peak)  # fmt: skip
-        if hand in views:
+        if hand in views and cfg.views.enabled:
             found = sorted(found + evidence2d.view_punches(me, h, views[hand], found, cfg.punch, cfg.views, clinch),
                            key=lambda d: d.peak)  # fmt: skip
         for d in found:
