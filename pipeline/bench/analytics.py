@@ -28,7 +28,6 @@ The thresholds were tuned on seeds 0-7 (``TUNING_SEEDS``); the default seeds are
 from __future__ import annotations
 
 import logging
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -46,8 +45,6 @@ HELD_OUT_SEEDS: tuple[int, ...] = (10, 11, 12)
 """The default seeds: never looked at while tuning."""
 FOOTAGE = "footage"
 """``pose2sim`` value: the session of ``cornerman bench footage`` (``pose2sim_session``)."""
-FOOTAGE_DIR_NAME = "cornerman_bench_footage"
-"""Name of ``bench footage``'s default work_dir in the system temp dir (``footage.run_bench``)."""
 POSE2SIM_STAGE = "fit"
 """The Pose2Sim row needs the stages up to this one (physics is left out, as for the synthetic rows)."""
 COUNT_KEYS = ("gt_punches", "detected", "matched", "type_correct", "outcome_correct", "speed_err_sum",
@@ -86,7 +83,9 @@ def _cached(cache: Path | None, key: str, make: Any) -> Keypoints3D:
 
 def footage_work_dir() -> Path:
     """The folder ``cornerman bench footage`` runs the Pose2Sim sample in by default."""
-    return Path(tempfile.gettempdir()) / FOOTAGE_DIR_NAME
+    from pipeline.bench import footage
+
+    return footage.default_work_dir()
 
 
 def _missing_models(folder: Path) -> list[str]:

@@ -38,6 +38,14 @@ log = logging.getLogger(__name__)
 DATASET = "pose2sim_multiperson"
 SESSION_NAME = "pose2sim_multiperson (bench footage)"
 """The ``name`` of the bench's session: a folder holding another session is never reused or wiped."""
+DEFAULT_DIR_NAME = "cornerman_bench_footage"
+"""Name of the default ``work_dir`` (``default_work_dir``) in the system temp dir."""
+
+
+def default_work_dir() -> Path:
+    """The folder the bench runs the Pose2Sim sample in when no ``work_dir`` is given."""
+    return Path(tempfile.gettempdir()) / DEFAULT_DIR_NAME
+
 
 OUTPUTS: tuple[tuple[str, str, str], ...] = tuple((name, st, art) for name, (st, art) in RESULT_ARTIFACTS.items())
 """(row name, stage, artifact) of every 3D output scored, in pipeline order (``pipeline.schema.sources``)."""
@@ -256,7 +264,7 @@ def run_bench(
 
     if not isinstance(fresh, bool):
         raise ValueError(f"bench footage: fresh must be true or false, got {fresh!r}")
-    folder = Path(work_dir) if work_dir else Path(tempfile.gettempdir()) / "cornerman_bench_footage"
+    folder = Path(work_dir) if work_dir else default_work_dir()
     session = footage_session(dataset_dir(DATASET), **session_overrides)
     if stages:
         session = dataclasses.replace(session, stages=_stage_list(stages))

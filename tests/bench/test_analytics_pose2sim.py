@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from pipeline.artifacts import ArtifactStore, Manifest
-from pipeline.bench import analytics
+from pipeline.bench import analytics, footage
 from pipeline.bench.footage import SESSION_NAME
 from pipeline.schema.session import SessionConfig
 from tests.conftest import write_tiny_session
@@ -57,7 +57,7 @@ def _fake_sample(data: Path) -> None:
 
 
 def test_the_footage_folder_is_looked_up_in_the_system_temp_dir(elsewhere: Path) -> None:
-    assert analytics.footage_work_dir() == elsewhere / "tmp" / analytics.FOOTAGE_DIR_NAME
+    assert analytics.footage_work_dir() == elsewhere / "tmp" / footage.DEFAULT_DIR_NAME
 
 
 def test_no_sample_skips_the_row_with_the_reason(elsewhere: Path, caplog: pytest.LogCaptureFixture) -> None:
@@ -66,21 +66,21 @@ def test_no_sample_skips_the_row_with_the_reason(elsewhere: Path, caplog: pytest
     with caplog.at_level(logging.WARNING, logger="pipeline.bench.analytics"):
         assert analytics.run_bench(seeds=[], cameras=4, sources="gt") == []
     assert "Pose2Sim row skipped" in caplog.text and "pose2sim_multiperson" in caplog.text
-    assert not (elsewhere / "tmp" / analytics.FOOTAGE_DIR_NAME).exists()
+    assert not (elsewhere / "tmp" / footage.DEFAULT_DIR_NAME).exists()
 
 
 def test_no_models_skips_the_row_after_setting_up_the_footage_session(elsewhere: Path) -> None:
     _fake_sample(elsewhere / "data")
     folder, why = analytics.pose2sim_session()
     assert folder is None and "2D models" in why and "rtmdet_nano" in why
-    made = elsewhere / "tmp" / analytics.FOOTAGE_DIR_NAME
+    made = elsewhere / "tmp" / footage.DEFAULT_DIR_NAME
     assert SessionConfig.load(made).name == SESSION_NAME  # the session bench footage would make, in temp
     assert not list(made.glob("artifacts/*/manifest.json"))  # no stage ran
 
 
 def test_a_folder_holding_another_session_is_refused(elsewhere: Path) -> None:
     _fake_sample(elsewhere / "data")
-    other = elsewhere / "tmp" / analytics.FOOTAGE_DIR_NAME
+    other = elsewhere / "tmp" / footage.DEFAULT_DIR_NAME
     other.mkdir()
     SessionConfig(name="my bout", source="tracks", calibration="calib.toml", tracks="t.npz").save(other)
     with pytest.raises(ValueError, match="my bout"):
