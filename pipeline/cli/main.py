@@ -33,6 +33,7 @@ BENCHES = {
     "shelf": "pipeline.bench.shelf",
     "footage": "pipeline.bench.footage",
     "analytics": "pipeline.bench.analytics",
+    "incremental": "pipeline.bench.incremental",
     "server": "server.loadtest",
     "viewer": "server.viewer_bench",
 }

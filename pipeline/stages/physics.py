@@ -50,11 +50,13 @@ from pipeline.stages.physics_incremental import (
     PhysicsPrevious,
     body_digest,
     checkpoints_of,
+    first_beyond,
     first_changed,
     input_digests,
     layout_mismatch,
     reference_digests,
     reference_reach,
+    reference_values,
     replan_window,
     skeletons_from_json,
 )
@@ -93,6 +95,13 @@ class PhysicsConfig:
     """Re-use the previous run (same config and code, same frames and persons): keep its
     humanoids and every window whose reference frames did not change, re-plan the rest
     (``pipeline.stages.physics_incremental``); False: always run in full."""
+    incremental_tol_m: float = 0.0005
+    """An incremental re-run treats a frame as unchanged when no reference length (tracked
+    site, root position) moved by more than this (m, >= 0; 0: equal in float32) and the
+    velocities by more than this per frame (``physics_incremental.reference_values``)."""
+    incremental_tol_rad: float = 0.005
+    """The same for the reference's angles (joint angles, quaternion components, servo
+    targets; rad, >= 0)."""
     humanoid: HumanoidConfig = field(default_factory=HumanoidConfig)
     """The simulated bodies and the scene (servos, contacts, floor, MuJoCo steps per frame)."""
     residual: ResidualConfig = field(default_factory=ResidualConfig)
@@ -125,6 +134,11 @@ class PhysicsConfig:
             raise ValueError(f"PhysicsConfig.glove_radius_m must be >= 0, got {self.glove_radius_m}")
         if self.max_frames < 0:
             raise ValueError(f"PhysicsConfig.max_frames must be >= 0, got {self.max_frames}")
+        if self.incremental_tol_m < 0.0 or self.incremental_tol_rad < 0.0:
+            raise ValueError(
+                "PhysicsConfig.incremental_tol_m and incremental_tol_rad must be >= 0, got "
+                f"{self.incremental_tol_m} and {self.incremental_tol_rad}"
+            )
 
 
 @dataclass(frozen=True)
@@ -379,7 +393,8 @@ def _run(
     secs: dict[str, float] = {}
     done = [0]
     ref_digest = np.zeros(0, dtype=np.uint64)
-    first_ref_change, reused_frames, bout = -1, 0, None
+    ref_vals: tuple[np.ndarray, np.ndarray] | None = None
+    first_ref_change, first_ref_change_exact, reused_frames, bout = -1, -1, 0, None
     for g in groups:
         sub = scene if len(g) == len(rows) else mp.build_scene([skels[i] for i in g], [pids[i] for i in g], kp.fps, kp.joint_names, hcfg, res_act)
         ref, targets, weight = mp.build_reference(
@@ -396,9 +411,12 @@ def _run(
         resume = None
         if len(g) == len(rows):
             ref_digest = reference_digests(ref, targets, weight)
+            ref_vals = _reference_values(scene, ref, targets, weight, kp.fps, cfg)
         if prev is not None:
-            first_ref_change = first_changed(prev.checkpoints.reference_digest, ref_digest)
-            resume, why = _resume_from(prev, max(first_ref_change - reach, 0) if first_ref_change < F else F, F, cfg)
+            first_ref_change_exact = first_changed(prev.checkpoints.reference_digest, ref_digest)
+            first_ref_change, why = _first_reference_change(prev.checkpoints, ref_vals)
+            if first_ref_change >= 0:
+                resume, why = _resume_from(prev, first_ref_change, F, cfg)
         sol = mp.optimise_bout(sub, ref, targets, weight, cfg.solver, cfg.residual, prog, resume=resume)
         if resume is not None:
             starts = mp.window_starts(F, cfg.solver.window, cfg.solver.commit)
@@ -457,7 +475,7 @@ def _run(
         first_input_change = first_changed(inputs.previous.checkpoints.input_digest, in_digest)
     checkpoints = None
     if bout is not None:
-        checkpoints = checkpoints_of(kp, pids, in_digest, ref_digest, body, skels, sole, bout, foot_offsets_mm)
+        checkpoints = checkpoints_of(kp, pids, in_digest, ref_digest, body, skels, sole, bout, foot_offsets_mm, ref_vals)
     compute_s = time.perf_counter() - t_start
     motion_s = max(F - 1, 1) / kp.fps
     body_pen = mp.deepest_inter_person_mm(contacts, F)
@@ -494,9 +512,9 @@ def _run(
         "reused_frames": int(reused_frames),
         "replanned_from_frame": int(reused_frames) if reused_frames < F else -1,
         "replanned_windows": int(agg["windows"]) - (bout.planned_from_window if bout is not None else 0),
-        "replan_reach_frames": reach if inputs.previous is not None else 0,
         "first_changed_input_frame": first_input_change,
         "first_changed_reference_frame": first_ref_change,
+        "first_changed_reference_frame_exact": first_ref_change_exact,
         "compute_s": compute_s,
         "realtime_factor": compute_s / motion_s,
         **{f"seconds_{k}": v for k, v in secs.items()},
@@ -524,6 +542,44 @@ def untrackable_message(
         else "kept without it (residual.mode=off; stats: untrackable_windows)"
     )
     return f"physics: {n_bad} of {n_windows} windows (frames {text}{more}) could not be tracked without a residual root force; {what}"
+
+
+def _reference_values(
+    scene: Scene, ref: Any, targets: np.ndarray, weight: np.ndarray, fps: float, cfg: PhysicsConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """``physics_incremental.reference_values`` of a multi-person reference, with the
+    scene's units per column: lengths in qpos/qvel (free joints' translations, slide joints),
+    joint servos in ctrl (the rest are residual root servos), each person's weight."""
+    free, slide = 0, 2  # mujoco.mjtJoint.mjJNT_FREE, mjJNT_SLIDE (no mujoco import here)
+    m = scene.model
+    lin_q, lin_v = np.zeros(m.nq, dtype=bool), np.zeros(m.nv, dtype=bool)
+    for j in range(m.njnt):
+        qa, da = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
+        if m.jnt_type[j] == free:
+            lin_q[qa : qa + 3], lin_v[da : da + 3] = True, True
+        elif m.jnt_type[j] == slide:
+            lin_q[qa], lin_v[da] = True, True
+    servo = np.zeros(m.nu, dtype=bool)
+    for p in scene.layout.persons:
+        servo[np.asarray(p.servo_ids, dtype=int)] = True
+    weight_n = np.array([p.mass_kg * 9.81 for p in scene.layout.persons])
+    return reference_values(
+        ref, targets, weight, lin_q, lin_v, servo, weight_n, fps, cfg.incremental_tol_m, cfg.incremental_tol_rad
+    )
+
+
+def _first_reference_change(
+    ck: PhysicsCheckpoints, new: tuple[np.ndarray, np.ndarray] | None
+) -> tuple[int, str]:
+    """First frame whose reference moved beyond the tolerances (``first_beyond`` with the
+    current run's tolerances), or -1 and why the previous run cannot be compared."""
+    if new is None:
+        return -1, "mode is not 'multi'"
+    if ck.reference_values is None:
+        return -1, "the previous run stored no reference values (older checkpoints)"
+    if ck.reference_values.shape != new[0].shape:
+        return -1, f"the reference has another layout ({ck.reference_values.shape} -> {new[0].shape} values)"
+    return first_beyond(ck.reference_values, new[0], new[1]), ""
 
 
 def _previous_or_why(

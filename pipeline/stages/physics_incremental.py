@@ -2,19 +2,21 @@
 
 After an edit at frame f (an identity swap, say), the fitted motion changes from about f
 on. A re-run rebuilds the scene and the kinematic reference (cheap), compares the
-reference frame by frame with the previous run's (``reference_digests``), and re-plans only from the first receding-horizon window that
-reads a changed frame: a window starting at s with horizon H reads frames s..s+H (the
-cost at every state, the servo schedule, the reference controls), so it is reused only
-when all of them are unchanged. The re-planned windows start from the stored state, warm
-start and carried controls (``PhysicsCheckpoints``; ``pipeline.backends.mujoco.physics.
-optimise_bout``, ``resume``).
+reference frame by frame with the previous run's, and re-plans only from the first
+receding-horizon window that reads a changed frame: a window starting at s with horizon H
+reads frames s..s+H (the cost at every state, the servo schedule, the reference controls),
+so it is reused only when all of them are unchanged. The re-planned windows start from the
+stored state, warm start and carried controls (``PhysicsCheckpoints``;
+``pipeline.backends.mujoco.physics.optimise_bout``, ``resume``).
 
-The frames are compared on the reference before its servo schedule (``reference_digests``):
-the schedule is a cubic spline through every frame, whose dependence on a frame far away
-is numerically nil but not bitwise, so it is accounted for as a reach of
-``SPLINE_REACH_FRAMES`` frames (``reference_reach``). The re-planned windows therefore
-equal a run from frame 0 up to that (below 1e-11) difference, which the optimiser may
-amplify like any rounding difference.
+A frame is unchanged when every value of the reference the optimiser reads moved by at
+most a tolerance (``reference_values``, ``first_beyond``; ``PhysicsConfig.incremental_tol_m``,
+``incremental_tol_rad``, ``REFERENCE_TOL_BW``): the servo schedule's spline and the
+stance-long planted feet carry a fading part of an edit many frames back (bit for bit, the
+schedule alone reaches ``SPLINE_REACH_FRAMES`` back), and those sub-millimetre tails are
+not re-planned. The reused frames are then the previous run's result for a reference
+within the tolerances of the new one, so an incremental re-run differs from a full one
+there by what the optimiser makes of such a difference (docs/design/incremental.md).
 
 The humanoids (sizes, masses, geometry, keypoint sites) are the athletes' bodies,
 estimated once from the whole bout: an incremental re-run keeps the previous run's
@@ -66,6 +68,10 @@ class PhysicsCheckpoints:
     window_iterations (W,), window_reset (W,) bool, window_kinematic (W,),
     window_cost_first (W,), window_cost_final (W,): how it went (for the stats).
     foot_site_offset_mm_mean: the stat of the run that calibrated the foot sites.
+    reference_values (F, K) float32, reference_tol (K,) float32: every per-frame value of
+    the kinematic reference the optimiser reads, one column each, and the change of each
+    that counts as none (``reference_values``); None in checkpoints written before them
+    (an incremental re-run then re-plans every window).
     """
 
     person_ids: np.ndarray
@@ -88,9 +94,18 @@ class PhysicsCheckpoints:
     window_cost_first: np.ndarray
     window_cost_final: np.ndarray
     foot_site_offset_mm_mean: float = 0.0
+    reference_values: np.ndarray | None = None
+    reference_tol: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         F, P, W = self.frame_indices.shape[0], self.person_ids.shape[0], self.window_start.shape[0]
+        if (self.reference_values is None) != (self.reference_tol is None):
+            raise ValueError("PhysicsCheckpoints: reference_values and reference_tol go together")
+        if self.reference_values is not None and self.reference_tol is not None:
+            check_array("PhysicsCheckpoints.reference_values", self.reference_values, (F, None), "f")
+            check_array(
+                "PhysicsCheckpoints.reference_tol", self.reference_tol, (self.reference_values.shape[1],), "f"
+            )
         check_array("PhysicsCheckpoints.input_digest", self.input_digest, (F,), "u")
         check_array("PhysicsCheckpoints.reference_digest", self.reference_digest, (F,), "u")
         check_array("PhysicsCheckpoints.sole_m", self.sole_m, (P,), "f")
@@ -198,6 +213,87 @@ def reference_reach(with_schedule: bool, smooth_frames: float) -> int:
     return SPLINE_REACH_FRAMES + (int(4.0 * smooth_frames + 0.5) if smooth_frames > 0 else 0)
 
 
+REFERENCE_TOL_BW = 0.005
+"""Change of a reference force (N, per person) that counts as none in ``reference_values``,
+as a fraction of that person's body weight (torques: the same number in N·m, i.e. over a
+1 m lever); 0.005 BW is about 3.5 N for a 70 kg athlete."""
+
+
+def reference_values(
+    ref: Reference,
+    targets: np.ndarray,
+    weight: np.ndarray,
+    linear_qpos: np.ndarray,
+    linear_qvel: np.ndarray,
+    angle_ctrl: np.ndarray,
+    weight_n: np.ndarray,
+    fps: float,
+    tol_m: float,
+    tol_rad: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every per-frame value of the reference the optimiser reads, as ``(values (F, K)
+    float32, tol (K,) float32)``: a frame is unchanged when each column moved by at most its
+    ``tol`` (``first_beyond``).
+
+    Columns and their tolerance: the tracked ``targets`` and the reference's sites (m:
+    ``tol_m``); ``weight``, the site weights and the planted feet (0: equal in float32);
+    ``qpos`` (``linear_qpos`` (nq,) True for a length: ``tol_m``, else ``tol_rad``); ``qvel``
+    (``linear_qvel`` (nv,): ``tol_m * fps`` m/s, else ``tol_rad * fps`` rad/s: the same
+    change over one frame); ``ctrl`` (``angle_ctrl`` (nu,) True for a joint servo:
+    ``tol_rad``, else (residual root servos) ``min(tol_m, tol_rad)``); the residual root
+    torque feed-forward and the servo schedule's forces and torques (``REFERENCE_TOL_BW``
+    of each person's weight ``weight_n`` (P,), N); the schedule's per-substep ``qpos``,
+    ``qvel`` and ``ctrl`` as the per-frame ones. The schedule is compared by value, so its
+    spline's reach back from a change needs no allowance.
+    """
+    F = ref.qpos.shape[0]
+    vals: list[np.ndarray] = []
+    tols: list[np.ndarray] = []
+
+    def add(a: np.ndarray, tol: np.ndarray | float) -> None:
+        a = np.asarray(a, dtype=float).reshape(F, -1)
+        t = np.broadcast_to(np.asarray(tol, dtype=float), a.shape[1:] if np.ndim(tol) else (a.shape[1],))
+        vals.append(a)
+        tols.append(np.asarray(t).reshape(-1))
+
+    q_tol = np.where(linear_qpos, tol_m, tol_rad)
+    v_tol = np.where(linear_qvel, tol_m * fps, tol_rad * fps)
+    u_tol = np.where(angle_ctrl, tol_rad, min(tol_m, tol_rad))
+    f_tol = REFERENCE_TOL_BW * np.asarray(weight_n, dtype=float)[:, None] * np.ones(3)  # (P, 3)
+    add(targets, tol_m)
+    add(weight, 0.0)
+    add(ref.site_local_m, tol_m)
+    add(ref.site_world_m, tol_m)
+    add(ref.site_weight, 0.0)
+    add(ref.qpos, q_tol)
+    add(ref.qvel, v_tol)
+    add(ref.ctrl, u_tol)
+    if ref.root_torque_ff is not None:
+        add(ref.root_torque_ff, f_tol.reshape(-1))
+    if ref.foot_contact is not None:
+        add(ref.foot_contact, 0.0)
+    sc = ref.schedule
+    if sc is not None:
+        k = sc.substeps
+        add(sc.qpos, np.tile(q_tol, k))
+        add(sc.qvel, np.tile(v_tol, k))
+        add(sc.ctrl, np.tile(u_tol, k))
+        add(sc.root_torque, np.tile(f_tol.reshape(-1), k))
+        add(sc.root_force, np.tile(f_tol.reshape(-1), k))
+    return np.concatenate(vals, axis=1).astype(np.float32), np.concatenate(tols).astype(np.float32)
+
+
+def first_beyond(old: np.ndarray, new: np.ndarray, tol: np.ndarray) -> int:
+    """First frame (row) where a column of ``new`` differs from ``old`` by more than its
+    ``tol`` (or is NaN in one of them only); the number of rows if none. ``old`` and ``new``
+    (F, K) must have the same shape."""
+    d = np.abs(old.astype(np.float64) - new.astype(np.float64))
+    nan_a, nan_b = np.isnan(old), np.isnan(new)
+    changed = ((d > tol[None, :]) & ~(nan_a | nan_b)) | (nan_a != nan_b)
+    rows = np.flatnonzero(changed.any(axis=1))
+    return int(rows[0]) if rows.size else int(new.shape[0])
+
+
 def body_digest(kind: str, pids: list[int], bodyfit: BodyFit | None) -> str:
     """Hash of what the humanoids of persons ``pids`` are built from, apart from the
     per-frame motion: the skeleton kind and, for ``"bodyfit"``, the body model, its rig and
@@ -291,8 +387,10 @@ def checkpoints_of(
     sole_m: np.ndarray,
     sol: BoutSolution,
     foot_mm: float,
+    ref_values: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> PhysicsCheckpoints:
-    """The checkpoints of a finished run (``sol``: the multi-person bout solution)."""
+    """The checkpoints of a finished run (``sol``: the multi-person bout solution;
+    ``ref_values``: ``reference_values`` of its reference)."""
     recs = sol.records
     nq, nv, nu = sol.qpos.shape[1], sol.qvel.shape[1], sol.ctrl.shape[1]
     L = max((r.carry.shape[0] for r in recs), default=0)
@@ -324,4 +422,6 @@ def checkpoints_of(
         window_cost_first=col("cost_first", float),
         window_cost_final=col("cost_final", float),
         foot_site_offset_mm_mean=float(foot_mm),
+        reference_values=None if ref_values is None else ref_values[0],
+        reference_tol=None if ref_values is None else ref_values[1],
     )

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from pipeline.stages.fit import FitConfig, FitResult, run
-from pipeline.stages.fit_incremental import CONTEXT_FRAMES, FitPrevious
+from pipeline.stages.fit_incremental import CONTEXT_FRAMES, INPUT_TOL, FitPrevious, changed_frames
 from tests.conftest import fit_stage_inputs, make_rig
 
 pytest.importorskip("torch")
@@ -113,3 +113,19 @@ def test_incremental_off_fits_in_full(fits: dict[str, object]) -> None:
 
 def test_the_context_covers_the_temporal_terms() -> None:
     assert CONTEXT_FRAMES >= 3 + FitConfig().accel_adapt_window
+
+
+def test_a_change_below_the_input_tolerance_is_no_change(fits: dict[str, object]) -> None:
+    """The 3D targets count as changed only beyond ``INPUT_TOL["kp3d_m"]`` (the smoother's
+    fading tail before an edit); the 2D keypoints and weights keep their tight tolerances."""
+    first = _fit(fits, "first")
+    ck = first.checkpoints
+    assert ck is not None
+    tol = INPUT_TOL["kp3d_m"]
+    kp = ck.kp3d_m.copy()
+    kp[10, 0, 3, 0] += 0.6 * tol
+    kp[20, 1, 5, 2] -= 2.0 * tol
+    uv = ck.uv_px.copy()
+    uv[1, 30, 0, 4, 1] += 10 * INPUT_TOL["uv_px"]
+    changed = changed_frames(ck, dataclasses.replace(ck, kp3d_m=kp, uv_px=uv))
+    assert np.flatnonzero(changed).tolist() == [20, 30]
