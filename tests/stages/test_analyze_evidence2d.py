@@ -105,7 +105,7 @@ def test_a_still_arm_and_a_walking_athlete_show_no_excursion() -> None:
     exc, speed = e2.window_evidence(sig, 1, 50, N - 2)
     assert sig.step_mps.max() > 2.0  # the wrist itself moves fast in the image ...
     # ... not away from the body (perspective leaves a few cm, a third of the threshold).
-    assert exc.max() < ViewEvidenceConfig().min_excursion_m / 3 and speed.max() < 0.3
+    assert exc.max() < ViewEvidenceConfig().view_min_excursion_m / 3 and speed.max() < 0.3
 
 
 def test_the_projected_excursion_is_in_metres_whatever_the_distance() -> None:
@@ -193,5 +193,5 @@ def test_mismatched_inputs_are_refused() -> None:
         e2.view_punches(b[0], h, short_sig, [], ON.punch, ON.views)
     with pytest.raises(ValueError, match="min_conf must be in"):
         ViewEvidenceConfig(min_conf=1.5)
-    with pytest.raises(ValueError, match="min_speed_mps"):
-        ViewEvidenceConfig(min_speed_mps=0.0)
+    with pytest.raises(ValueError, match="view_min_speed_mps"):
+        ViewEvidenceConfig(view_min_speed_mps=0.0)

@@ -122,10 +122,10 @@ class ViewEvidenceConfig:
     min_excursion_3d_m: float = 0.12
     """Smallest 3D excursion of the fist from its guard that is looked at (m, > 0; the punch
     rules' own threshold is ``PunchConfig.min_excursion_m``)."""
-    min_excursion_m: float = 0.15
+    view_min_excursion_m: float = 0.15
     """Smallest projected excursion of the wrist from its guard in one view over the way out
     and back (m across the line of sight, > 0)."""
-    min_speed_mps: float = 4.0
+    view_min_speed_mps: float = 4.0
     """Smallest projected speed of the wrist relative to the neck in that view on the way out
     (m/s, > 0)."""
     min_conf: float = 0.1
@@ -141,7 +141,7 @@ class ViewEvidenceConfig:
 
     def __post_init__(self) -> None:
         _positive("ViewEvidenceConfig", min_excursion_3d_m=self.min_excursion_3d_m,
-                  min_excursion_m=self.min_excursion_m, min_speed_mps=self.min_speed_mps,
+                  view_min_excursion_m=self.view_min_excursion_m, view_min_speed_mps=self.view_min_speed_mps,
                   scale_window_s=self.scale_window_s)  # fmt: skip
         if not 0.0 <= self.min_conf <= 1.0:
             raise ValueError(f"ViewEvidenceConfig.min_conf must be in [0, 1], got {self.min_conf}")

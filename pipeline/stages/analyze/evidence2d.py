@@ -248,7 +248,7 @@ def view_failed(
     ``new``, no punch of ``found`` (the same fist's) overlaps it; ``whole``, it lies inside the
     clip (an excursion cut by the first or last frame has no way out or back to judge); ``form``, it passes every punch
     rule but those on speed (``MOTION_ONLY``); ``views``, one view shows the wrist at least
-    ``vcfg.min_excursion_m`` from its guard and at least ``vcfg.min_speed_mps`` fast on the way out."""
+    ``vcfg.view_min_excursion_m`` from its guard and at least ``vcfg.view_min_speed_mps`` fast on the way out."""
     if any(c.start <= d.end and d.start <= c.end for d in found):
         return "new"
     if c.start <= 0 or c.end >= sig.ok.shape[1] - 1:
@@ -256,7 +256,7 @@ def view_failed(
     if rule_failed(replace(c, out_speed_mps=np.inf, peak_speed_mps=np.inf), cfg, fps) is not None:
         return "form"
     exc, speed = window_evidence(sig, c.start, c.peak, c.end)
-    if not np.any((exc >= vcfg.min_excursion_m) & (speed >= vcfg.min_speed_mps)):
+    if not np.any((exc >= vcfg.view_min_excursion_m) & (speed >= vcfg.view_min_speed_mps)):
         return "views"
     return None
 
