@@ -114,4 +114,5 @@ def test_held_bone_lengths_keep_an_early_outlier_decision() -> None:
     np.testing.assert_array_equal(held_bones.rigid_m, bones.rigid_m)
     early = slice(0, 40)
     assert np.abs(held.xyz_m[early] - first.xyz_m[early]).max() <= INPUT_TOL["kp3d_m"]
-    assert np.abs(fresh.xyz_m[early] - first.xyz_m[early]).max() > 100 * INPUT_TOL["kp3d_m"]
+    # Afresh the early frame moves by far more than the fit's input tolerance (0.5 mm).
+    assert np.abs(fresh.xyz_m[early] - first.xyz_m[early]).max() > 10 * INPUT_TOL["kp3d_m"]
