@@ -1,4 +1,5 @@
-"""Fixtures: the real FastAPI app (tmp SQLite), a token per role, and a registered test session."""
+"""Fixtures: a real viser server on a free port, the real FastAPI app (tmp SQLite), a token per
+role, and a registered test session."""
 
 from __future__ import annotations
 
@@ -7,8 +8,18 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+import viser
 
 from tests.webui.fixtures import build_session
+from webui.launcher import free_port
+
+
+@pytest.fixture
+def server() -> Iterator[viser.ViserServer]:
+    """A viser server on a free local port, stopped after the test."""
+    s = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    yield s
+    s.stop()
 
 
 @dataclass

@@ -14,18 +14,10 @@ from tests.webui.conftest import ApiEnv, api_client
 from tests.webui.fixtures import build_session
 from webui.app import ViewerApp
 from webui.colors import hex_to_rgb
-from webui.launcher import free_port
 
 
 def _count(img: np.ndarray, rgb: tuple[int, int, int], tol: int = 12) -> int:
     return int(np.all(np.abs(img.astype(int) - np.array(rgb)) <= tol, axis=-1).sum())
-
-
-@pytest.fixture
-def server():  # noqa: ANN201
-    s = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
-    yield s
-    s.stop()
 
 
 def test_read_only_viewer_renders_frames_and_persons(tmp_path: Path, server: viser.ViserServer) -> None:

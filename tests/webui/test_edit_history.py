@@ -8,15 +8,7 @@ import viser
 
 from tests.webui.conftest import ApiEnv, api_client
 from webui.app import ViewerApp
-from webui.launcher import free_port
 from webui.panels.annotate import parse_entry_label
-
-
-@pytest.fixture
-def server():  # noqa: ANN201
-    s = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
-    yield s
-    s.stop()
 
 
 def test_range_swap_and_undo_of_an_older_entry(api_env: ApiEnv, server: viser.ViserServer) -> None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pytest
 import viser
 
 from pipeline.artifacts import ArtifactStore, Manifest
@@ -13,7 +12,6 @@ from pipeline.schema.analytics import AthleteSeries, BoutEvents
 from tests.webui.fixtures import build_session
 from webui.app import ViewerApp
 from webui.events import EventsView
-from webui.launcher import free_port
 
 
 def _events(n_frames: int) -> tuple[BoutEvents, AthleteSeries]:
@@ -51,13 +49,6 @@ def test_events_view_filters_jumps_and_marks() -> None:
     cards = v.summary_cards()
     assert "**Red** — 2 punches: 2 landed" in cards and "Clinches: 0." in cards
     assert "has not run" in EventsView(None, None, {}).listing(rows)
-
-
-@pytest.fixture
-def server():  # noqa: ANN201
-    s = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
-    yield s
-    s.stop()
 
 
 def test_viewer_event_rows_filters_and_punch_buttons(tmp_path: Path, server: viser.ViserServer) -> None:

@@ -7,7 +7,6 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
-import pytest
 import viser
 
 from pipeline.artifacts import ArtifactStore, Manifest
@@ -16,7 +15,6 @@ from tests.webui.fixtures import build_session
 from tests.webui.test_events import _events
 from webui.app import ViewerApp
 from webui.events import DEFENCE_ABBREV, DEFENCE_MARK, HUMAN_MARK, LEGEND, EventsView
-from webui.launcher import free_port
 from webui.panels.events import NO_EVENT
 
 RED, BLUE = 0, 1
@@ -85,13 +83,6 @@ def test_defence_filters_marks_list_picker_and_cards() -> None:
     cards = v.summary_cards()
     assert "0 slips, 0 ducks, 1 blocks, 0 parries" in cards.split("**Blue**")[0]  # Red's card
     assert "0 slips, 1 ducks, 0 blocks, 1 parries" in cards.split("**Blue**")[1]
-
-
-@pytest.fixture
-def server():  # noqa: ANN201
-    s = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
-    yield s
-    s.stop()
 
 
 def test_viewer_shows_defence_marks_and_filters_on_it(tmp_path: Path, server: viser.ViserServer) -> None:

@@ -15,14 +15,6 @@ from pipeline.io.export import FORMATS, ExportSelection, export_files
 from pipeline.io.export.write import bundle
 from tests.webui.fixtures import build_session
 from webui.app import ViewerApp
-from webui.launcher import free_port
-
-
-@pytest.fixture
-def server():  # noqa: ANN201
-    s = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
-    yield s
-    s.stop()
 
 
 def _press(

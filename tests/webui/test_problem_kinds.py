@@ -4,7 +4,6 @@ problems.npz files written before the physics kinds existed."""
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +15,6 @@ from pipeline.stages.evaluate import FLAG_KINDS, LEGACY_FLAG_KINDS, ProblemFlags
 from tests.webui.fixtures import build_session
 from webui.analysis import compute_problems, compute_series
 from webui.app import ViewerApp
-from webui.launcher import free_port
 from webui.panels.plots import RESIDUAL_TITLE
 from webui.panels.timeline import ANY_PROBLEM, kind_options
 from webui.scene.session_data import load_session_data
@@ -54,13 +52,6 @@ def _legacy_arrays() -> dict[str, np.ndarray]:
     z = np.zeros(N)
     return {"frame_indices": np.arange(N), "identity_conf_min": np.ones(N), "reproj_err_px": z,
             "penetration_mm": z, "reproj_rel": z, "flags": flags}  # fmt: skip
-
-
-@pytest.fixture
-def server() -> Iterator[viser.ViserServer]:
-    s = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
-    yield s
-    s.stop()
 
 
 def test_frame_problems_list_the_physics_kinds(tmp_path: Path) -> None:

@@ -18,7 +18,6 @@ from tests.webui.fixtures import wait_for
 from webui.app import ViewerApp
 from webui.colors import hex_to_rgb
 from webui.jobs import job_fraction, job_summary
-from webui.launcher import free_port
 from webui.scene.persons import DIM_RGB
 from webui.staleness import (
     LAYERS,
@@ -105,13 +104,6 @@ def _count(img: np.ndarray, rgb: tuple[int, int, int], tol: int = 12) -> int:
 
 def _colours(app: ViewerApp, pid: int) -> set[tuple[int, ...]]:
     return {tuple(int(c) for c in row) for row in np.asarray(app.persons.nodes[pid].skeleton.colors).reshape(-1, 3)}
-
-
-@pytest.fixture
-def server():  # noqa: ANN201
-    s = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
-    yield s
-    s.stop()
 
 
 _wait = partial(wait_for, timeout_s=30.0)
