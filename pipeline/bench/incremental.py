@@ -129,6 +129,18 @@ def run_bench(
     from pipeline.runner import STAGE_ORDER
     from pipeline.runner import run as run_stages
 
+    for name, v in (
+        ("frame", frame),
+        ("person_a", person_a),
+        ("person_b", person_b),
+        ("frames", frames),
+        ("cameras", cameras),
+        ("seed", seed),
+    ):
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise ValueError(f"{name}={v!r}: must be an integer")
+    if not isinstance(full, bool):
+        raise ValueError(f"full={full!r}: must be true or false")
     if frame < 0:
         raise ValueError(f"frame={frame}: must be >= 0")
     if keep is not None and Path(keep).exists():

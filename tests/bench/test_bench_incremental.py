@@ -103,3 +103,11 @@ def test_an_edit_outside_the_session_is_a_clear_error(source: Path) -> None:
         run_bench(session=str(source), frame=EDIT_FRAME, camera="nope")
     with pytest.raises(ValueError, match="session=.*no session.json"):
         run_bench(session=str(source / "missing"))
+
+
+def test_options_of_the_wrong_type_are_refused_before_any_work(source: Path) -> None:
+    # ``--opt frame=abc`` reaches the bench as a string: refused by name, not a TypeError later.
+    with pytest.raises(ValueError, match="frame='abc': must be an integer"):
+        run_bench(session=str(source), frame="abc")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="full='yes': must be true or false"):
+        run_bench(session=str(source), full="yes")  # type: ignore[arg-type]
