@@ -117,8 +117,8 @@ class ViewEvidenceConfig:
     fast, long excursion of the wrist away from the neck."""
 
     enabled: bool = False
-    """Look for such punches when the stage gets the 2D tracks and their association (off:
-    on held-out bouts it found none the rules kept; docs/design/analytics.md)."""
+    """Look for such punches when the stage gets the 2D tracks and their association (off by
+    default; docs/design/analytics.md says why)."""
     min_excursion_3d_m: float = 0.12
     """Smallest 3D excursion of the fist from its guard that is looked at (m, > 0; the punch
     rules' own threshold is ``PunchConfig.min_excursion_m``)."""
