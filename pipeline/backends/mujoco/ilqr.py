@@ -28,9 +28,10 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import mujoco
 import numpy as np
@@ -86,10 +87,37 @@ class Trajectory:
     actuator_force: np.ndarray  # (H, nu)
     costs: np.ndarray  # (H+1,)
     stable: bool
+    cut: bool = False
+    """Stopped early because its cost already exceeded ``rollout``'s ``bound`` (the states
+    and costs after that step are not filled in; the total counts as infinite)."""
 
     @property
     def total(self) -> float:
-        return float(self.costs.sum()) if self.stable else float("inf")
+        return float(self.costs.sum()) if self.stable and not self.cut else float("inf")
+
+
+class Bound:
+    """An upper bound on the total cost a rollout must stay under to matter: the lowest of
+    the nominal's total and the totals of the line search's finished candidates. Rollouts
+    on several threads share one and lower it (``lower``); a stale read only makes it
+    looser, never wrong.
+
+    A rollout is stopped when its running cost exceeds the bound by more than a relative
+    ``SLACK``: the running sum and ``Trajectory.total`` (numpy's pairwise sum) round
+    differently, by far less than that, so a stopped rollout's total is surely above the
+    bound and it could not have been picked."""
+
+    SLACK = 1e-9
+
+    def __init__(self, value: float) -> None:
+        self.value = value
+
+    def lower(self, total: float) -> None:
+        if total < self.value:
+            self.value = total
+
+    def exceeded(self, so_far: float) -> bool:
+        return so_far > self.value * (1.0 + self.SLACK)
 
 
 def _set_state(model: mujoco.MjModel, data: mujoco.MjData, qpos: np.ndarray, qvel: np.ndarray, warm: np.ndarray | None) -> None:
@@ -121,6 +149,7 @@ def rollout(
     active: np.ndarray | None = None,
     warm0: np.ndarray | None = None,
     substeps: int = 1,
+    bound: Bound | None = None,
 ) -> Trajectory:
     """Simulate H = len(ctrl) control steps (each ``substeps`` MuJoCo steps with the
     control held) from (qpos0, qvel0).
@@ -130,6 +159,8 @@ def rollout(
     ``ctrlrange`` by MuJoCo). Costs are evaluated at each state; ``t0`` offsets the
     time index passed to the cost. An unstable step (NaN, |qvel| > ``MAX_SPEED`` or
     MuJoCo's bad-QACC warning) marks the trajectory unstable (total cost = inf).
+    ``bound``: stop as soon as the costs so far exceed its value (``Trajectory.cut``): the
+    costs are non-negative, so such a rollout's total would exceed it too.
     """
     H = ctrl.shape[0]
     nq, nv, nu = model.nq, model.nv, model.nu
@@ -148,6 +179,8 @@ def rollout(
     lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
     limited = model.actuator_ctrllimited.astype(bool)
     bad0 = data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number
+    so_far = 0.0
+    ctrl_buf = data.ctrl
     for t in range(H):
         out.qpos[t] = data.qpos
         out.qvel[t] = data.qvel
@@ -163,11 +196,16 @@ def rollout(
         # step1 computes the position/velocity stages of x_t (sites, contacts, qvel
         # still = v_t), where the running cost is evaluated; step2 integrates.
         mujoco.mj_step1(model, data)
-        out.costs[t] = cost.value(model, data, t0 + t, u)
+        c_t = out.costs[t] = cost.value(model, data, t0 + t, u)
+        if bound is not None:
+            so_far += c_t
+            if bound.exceeded(so_far):
+                out.cut = True
+                return out
         mujoco.mj_step2(model, data)
         out.actuator_force[t] = data.actuator_force
         for sub in range(1, substeps):
-            data.ctrl[:] = u
+            ctrl_buf[:] = u
             cost.prepare(model, data, t0 + t, sub)
             mujoco.mj_step(model, data)
         ok = np.all(np.isfinite(data.qvel)) and np.abs(data.qvel).max() < MAX_SPEED
@@ -339,9 +377,41 @@ def linearise(
     return lin
 
 
-def backward_pass(lin: Linearisation, mu: float) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+class _Done:
+    """A computed value behind ``concurrent.futures.Future``'s ``result()``: the serial
+    stand-in of a pool's ``submit``."""
+
+    def __init__(self, value: object) -> None:
+        self.value = value
+
+    def result(self) -> object:
+        return self.value
+
+
+def _now(fn: Callable[..., object], *args: object) -> _Done:
+    return _Done(fn(*args))
+
+
+def _q_uu(luu: np.ndarray, B: np.ndarray, Vxx: np.ndarray) -> np.ndarray:
+    return luu + B.T @ (Vxx @ B)
+
+
+def _q_xx(lxx: np.ndarray, A: np.ndarray, VA: np.ndarray) -> np.ndarray:
+    return lxx + A.T @ VA
+
+
+def _cross(Kt: np.ndarray, Qux: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return Kt @ Qux, Qux.T @ K
+
+
+def backward_pass(
+    lin: Linearisation, mu: float, pool: ThreadPoolExecutor | None = None
+) -> tuple[np.ndarray, np.ndarray, float, float] | None:
     """Riccati recursion; returns (K (H, nu, nx), k (H, nu), dV1, dV2) with the
-    expected decrease α·dV1 + α²·dV2, or None when a regularised Q_uu is not PD."""
+    expected decrease α·dV1 + α²·dV2, or None when a regularised Q_uu is not PD.
+
+    ``pool``: the step's independent matrix products (Q_uu, Q_xx, Kᵀ Q_ux, Q_uxᵀ K) run on
+    its threads meanwhile; every product and sum is the serial one, so is the result."""
     H, nx, na = lin.B.shape
     Vx = lin.lx[H].copy()
     Vxx = lin.lxx[H].copy()
@@ -349,27 +419,36 @@ def backward_pass(lin: Linearisation, mu: float) -> tuple[np.ndarray, np.ndarray
     k = np.zeros((H, na))
     dV1 = dV2 = 0.0
     eye = np.eye(na)
+    run: Callable[..., Any] = pool.submit if pool is not None else _now
     for t in range(H - 1, -1, -1):
         A, B = lin.A[t], lin.B[t]
+        f_uu = run(_q_uu, lin.luu[t], B, Vxx)
+        VA = Vxx @ A
+        f_xx = run(_q_xx, lin.lxx[t], A, VA)
         Qx = lin.lx[t] + A.T @ Vx
         Qu = lin.lu[t] + B.T @ Vx
-        VA = Vxx @ A
-        VB = Vxx @ B
-        Qxx = lin.lxx[t] + A.T @ VA
-        Quu = lin.luu[t] + B.T @ VB
         Qux = B.T @ VA
+        Quu: np.ndarray = f_uu.result()
         try:
             L = np.linalg.cholesky(0.5 * (Quu + Quu.T) + mu * eye)
         except np.linalg.LinAlgError:
+            f_xx.result()
             return None
         rhs = np.column_stack([Qu, Qux])
         sol = np.linalg.solve(L.T, np.linalg.solve(L, rhs))
         k[t] = -sol[:, 0]
         K[t] = -sol[:, 1:]
+        Kt = K[t].T
+        f_cross = run(_cross, Kt, Qux, K[t])
         dV1 += float(k[t] @ Qu)
         dV2 += 0.5 * float(k[t] @ Quu @ k[t])
-        Vx = Qx + K[t].T @ Quu @ k[t] + K[t].T @ Qu + Qux.T @ k[t]
-        Vxx = Qxx + K[t].T @ Quu @ K[t] + K[t].T @ Qux + Qux.T @ K[t]
+        KtQuu = Kt @ Quu
+        Vx = Qx + KtQuu @ k[t] + Kt @ Qu + Qux.T @ k[t]
+        KtQuuK = KtQuu @ K[t]
+        cross: tuple[np.ndarray, np.ndarray] = f_cross.result()
+        KtQux, QuxtK = cross
+        Qxx: np.ndarray = f_xx.result()
+        Vxx = Qxx + KtQuuK + KtQux + QuxtK
         Vxx = 0.5 * (Vxx + Vxx.T)
     return K, k, dV1, dV2
 
@@ -450,7 +529,7 @@ def optimise(
             while mu <= cfg.mu_max and tries <= cfg.max_backtracks:
                 tries += 1
                 c0 = time.perf_counter()
-                bp = backward_pass(lin, mu)
+                bp = backward_pass(lin, mu, workers.pool)
                 secs["backward"] += time.perf_counter() - c0
                 if bp is None:
                     mu = max(mu * cfg.mu_up, 1e-4)
@@ -461,7 +540,9 @@ def optimise(
                 best: Trajectory | None = None
                 best_alpha = 0.0
                 c0 = time.perf_counter()
-                cands = _candidates(model, data, cost, qpos0, qvel0, nominal, K, k, alphas, act, t0, warm0, substeps, workers)
+                cands = _candidates(
+                    model, data, cost, qpos0, qvel0, nominal, K, k, alphas, act, t0, warm0, substeps, workers, Bound(nominal.total)
+                )
                 for a, cand in zip(alphas, cands, strict=True):
                     if cand.total < (best.total if best is not None else nominal.total):
                         best, best_alpha = cand, float(a)
@@ -514,12 +595,21 @@ def _candidates(
     warm0: np.ndarray | None,
     substeps: int,
     workers: Workers | None,
+    bound: Bound | None = None,
 ) -> list[Trajectory]:
-    """Closed-loop rollouts of every line-search step size, in ``alphas`` order."""
+    """Closed-loop rollouts of every line-search step size, in ``alphas`` order.
+
+    ``bound``: a rollout whose running cost exceeds it (lowered by every finished
+    candidate's total) is stopped (``Trajectory.cut``, total inf). Such a candidate's total
+    is above the nominal's or another candidate's, so the lowest total, and which step
+    has it, are the same as without the bound."""
 
     def one(a: float, d: mujoco.MjData | None = None) -> Trajectory:
         dd = d if d is not None else workers.data()  # type: ignore[union-attr]
-        return rollout(model, dd, cost, qpos0, qvel0, nominal.ctrl, t0, nominal, K, k, a, act, warm0, substeps)
+        tr = rollout(model, dd, cost, qpos0, qvel0, nominal.ctrl, t0, nominal, K, k, a, act, warm0, substeps, bound)
+        if bound is not None:
+            bound.lower(tr.total)
+        return tr
 
     if workers is None or workers.pool is None:
         return [one(float(a), data) for a in alphas]

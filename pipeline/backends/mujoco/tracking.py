@@ -36,6 +36,7 @@ from pipeline.backends.mujoco.schedule import ServoSchedule
 
 ROOT_ROT_LEVER_M = 0.3
 FOOT_SITES = ("heel", "big_toe", "small_toe")
+_EYE3 = np.eye(3)
 
 
 @dataclass(frozen=True)
@@ -71,6 +72,15 @@ class Reference:
 
 def _skew(a: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def _skews(a: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) cross-product matrices of the rows of ``a`` (n, 3): ``_skew`` of each."""
+    out = np.zeros((a.shape[0], 3, 3))
+    out[:, 0, 1], out[:, 0, 2] = -a[:, 2], a[:, 1]
+    out[:, 1, 0], out[:, 1, 2] = a[:, 2], -a[:, 0]
+    out[:, 2, 0], out[:, 2, 1] = -a[:, 1], a[:, 0]
+    return out
 
 
 def collision_depths(
@@ -164,6 +174,23 @@ class TrackingCost:
         # Per person: (qpos address of the root quaternion, root body id).
         self._root_adr_body = [(p.qpos_adr + 3, p.root_body) for p in layout.persons]
         self._ref_cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]] = {}
+        # ``prepare``'s per-person constants at (frame, substep): the root's qpos address and
+        # body, −kp, the torque limit and ``_root_ref``'s parts (cleared with ``_ref_cache``).
+        self._prep_cache: dict[tuple[int, int], list[tuple[int, int, float, float, np.ndarray, np.ndarray, np.ndarray | None]]] = {}
+        self._scratch = threading.local()
+        # ``data.ctrl[acts] += x`` is ``data.ctrl += x`` when the controls are all of them, in order.
+        self._acts_all = bool(np.array_equal(self._acts, np.arange(model.nu)))
+        # Per person: the Jacobians (3, nv) of the root placement residuals (position, rotation).
+        self._root_jacs = []
+        for p in layout.persons:
+            Jp = np.zeros((3, model.nv))
+            Jp[:, p.qvel_adr : p.qvel_adr + 3] = np.eye(3)
+            Jr = np.zeros((3, model.nv))
+            Jr[:, p.qvel_adr + 3 : p.qvel_adr + 6] = ROOT_ROT_LEVER_M * np.eye(3)
+            self._root_jacs.append((Jp, Jr))
+        self._zero_jac = np.zeros((3, model.nv))
+        # Gauss-Newton Hessian of the velocity terms (w_reg, w_vel) in the qvel block.
+        self._vel_hess = 2 * (weights.w_reg + weights.w_vel) * np.eye(model.nv)
         # Per-control weight of the deviation from the reference's targets: w_reg for the
         # servos, w_residual for the residual root servos (their use is to be rare).
         self._u_weight = np.concatenate(
@@ -199,25 +226,22 @@ class TrackingCost:
             if with_jac:
                 va = p.qvel_adr
                 jw: list[np.ndarray] = []
-                for s_idx, sid in enumerate(sites):
+                J = self._jac
+                skews = _skews(local)
+                zero = self._zero_jac  # np.vstack copies: the rows may share one array
+                for s_idx, sid in enumerate(sites.tolist()):
                     if w[s_idx] == 0.0 and ww[s_idx] == 0.0:
-                        js.append(np.zeros((3, m.nv)))
-                        jw.append(np.zeros((3, m.nv)))
+                        js.append(zero)
+                        jw.append(zero)
                         continue
-                    mujoco.mj_jacSite(m, data, self._jac, None, int(sid))
-                    jw.append(ww[s_idx] * self._jac)
-                    J = self._jac.copy()
-                    J[:, va : va + 3] -= np.eye(3)
+                    mujoco.mj_jacSite(m, data, J, None, sid)
+                    jw.append(ww[s_idx] * J)
+                    J[:, va : va + 3] -= _EYE3
                     Jl = R.T @ J
-                    Jl[:, va + 3 : va + 6] += _skew(local[s_idx])
+                    Jl[:, va + 3 : va + 6] += skews[s_idx]
                     js.append(w[s_idx] * Jl)
                 js += jw
-                Jp = np.zeros((3, m.nv))
-                Jp[:, va : va + 3] = np.eye(3)
-                js.append(Jp)
-                Jr = np.zeros((3, m.nv))
-                Jr[:, va + 3 : va + 6] = ROOT_ROT_LEVER_M * np.eye(3)
-                js.append(Jr)
+                js += self._root_jacs[i]
         r = np.concatenate(rs)
         return r, (np.vstack(js) if with_jac else None)
 
@@ -278,6 +302,7 @@ class TrackingCost:
             inertia = np.array([p.mass_kg * 0.15**2 for p in self.layout.persons])
             self._kd_rot = 2.0 * np.sqrt(self._kp_rot * inertia)
             self._ref_cache.clear()
+            self._prep_cache.clear()
         for i, dofs in enumerate(self._root_rot_dofs):
             extra = self._kd_rot[i] if on else 0.0
             self.model.dof_damping[dofs] = self._root_damping0[i] + extra
@@ -347,22 +372,36 @@ class TrackingCost:
         the residual is on; its damping part is the joint's)."""
         if self._ctrl_shift is not None and sub > 0:
             k = min(sub, self._ctrl_shift.shape[1] - 1)
-            data.ctrl[self._acts] += self._ctrl_shift[self._t(t), k]
+            if self._acts_all:
+                data.ctrl += self._ctrl_shift[self._t(t), k]
+            else:
+                data.ctrl[self._acts] += self._ctrl_shift[self._t(t), k]
         if not self.residual_on:
             return
         # ``_root_torque_parts``' explicit part, written straight into ``xfrc_applied``
         # (the same arithmetic; this runs at every substep of every rollout).
         qpos, xfrc = data.qpos, data.xfrc_applied
-        R, err = np.empty(9), np.empty(3)
-        for (adr, body), kp, lim, (q_ref, kd_w_ref, ff) in zip(
-            self._root_adr_body, self._kp_rot, self._tau_lim, self._root_ref(t, sub), strict=True
-        ):
+        scratch = self._scratch.__dict__
+        if not scratch:  # per thread: rollouts run on several
+            scratch["R"] = np.empty(9)
+            scratch["err"] = np.empty(3)
+        R, err = scratch["R"], scratch["err"]
+        R33 = R.reshape(3, 3)
+        parts = self._prep_cache.get((t, sub))
+        if parts is None:
+            parts = self._prep_cache[(t, sub)] = [
+                (adr, body, float(-kp), float(lim), q_ref, kd_w_ref, ff)
+                for (adr, body), kp, lim, (q_ref, kd_w_ref, ff) in zip(
+                    self._root_adr_body, self._kp_rot, self._tau_lim, self._root_ref(t, sub), strict=True
+                )
+            ]
+        for adr, body, neg_kp, lim, q_ref, kd_w_ref, ff in parts:
             q = qpos[adr : adr + 4]
             mujoco.mju_subQuat(err, q, q_ref)
             mujoco.mju_quat2Mat(R, q)
-            tau = -kp * (R.reshape(3, 3) @ err)
+            tau = neg_kp * (R33 @ err)
             if ff is not None:
-                tau = tau + ff
+                tau += ff
             n = math.sqrt(float(tau.dot(tau)))
             xfrc[body, 3:6] = (tau if n <= lim else tau * (lim / n)) + kd_w_ref
 
@@ -404,7 +443,7 @@ class TrackingCost:
             lxx[nv:, nv:] += 2 * w.w_skate * (Js.T @ Js)
         v = data.qvel
         lx[nv:] += 2 * w.w_reg * v + 2 * w.w_vel * (v - ref.qvel[t])
-        lxx[nv:, nv:] += 2 * (w.w_reg + w.w_vel) * np.eye(nv)
+        lxx[nv:, nv:] += self._vel_hess
         lu = np.zeros(nu)
         luu = np.zeros((nu, nu))
         if u is not None:

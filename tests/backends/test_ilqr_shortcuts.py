@@ -1,0 +1,127 @@
+"""The iLQR's shortcuts change no number: line-search rollouts stopped once their cost
+exceeds the best total so far pick the same step, and the backward pass with its
+products on worker threads returns the serial gains bit for bit."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco")
+
+from pipeline.backends.mujoco.ilqr import (  # noqa: E402
+    Bound,
+    ILQRConfig,
+    Linearisation,
+    Workers,
+    _candidates,
+    backward_pass,
+    linearise,
+    rollout,
+)
+from pipeline.backends.mujoco.tracking import _skew, _skews  # noqa: E402
+from tests.backends.test_ilqr_parallel import SUBSTEPS, _problem  # noqa: E402
+
+
+def _line_search_inputs() -> tuple:
+    model, cost, ctrl = _problem()
+    q0, v0 = np.array([0.3, -0.8]), np.zeros(2)
+    data = mujoco.MjData(model)
+    nominal = rollout(model, data, cost, q0, v0, ctrl, substeps=SUBSTEPS)
+    act = np.arange(model.nu)
+    lin = linearise(model, data, cost, nominal, ILQRConfig(deriv_every=1), act, substeps=SUBSTEPS)
+    # A small regularisation: the full step overshoots, so some candidates are worse than others.
+    bp = backward_pass(lin, 1e-6)
+    assert bp is not None
+    K, k, _, _ = bp
+    alphas = np.logspace(0.0, -2.0, 6)
+    return model, data, cost, q0, v0, nominal, K, k, alphas, act
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_bounded_line_search_picks_the_same_step(threads: int) -> None:
+    model, data, cost, q0, v0, nominal, K, k, alphas, act = _line_search_inputs()
+    full = _candidates(model, data, cost, q0, v0, nominal, K, k, alphas, act, 0, None, SUBSTEPS, None)
+    with Workers(model, threads) as w:
+        cut = _candidates(model, data, cost, q0, v0, nominal, K, k, alphas, act, 0, None, SUBSTEPS, w, Bound(nominal.total))
+    totals, cut_totals = [c.total for c in full], [c.total for c in cut]
+    assert min(totals) < nominal.total
+    assert int(np.argmin(cut_totals)) == int(np.argmin(totals))
+    assert min(cut_totals) == min(totals)
+    best = int(np.argmin(totals))
+    np.testing.assert_array_equal(cut[best].qpos, full[best].qpos)
+    np.testing.assert_array_equal(cut[best].ctrl, full[best].ctrl)
+    stopped = [i for i, c in enumerate(cut) if c.cut]
+    # Some rollout was stopped early (else this test checks nothing), and each stopped one
+    # is truly worse than the chosen step, before the end of its horizon.
+    assert stopped
+    for i in stopped:
+        assert totals[i] > min(totals)
+        assert np.count_nonzero(cut[i].costs) < cut[i].costs.size
+    for i, c in enumerate(cut):
+        if not c.cut:
+            assert c.total == totals[i]
+
+
+def test_rollout_stops_once_over_the_bound() -> None:
+    model, cost, ctrl = _problem()
+    q0, v0 = np.array([0.3, -0.8]), np.zeros(2)
+    data = mujoco.MjData(model)
+    free = rollout(model, data, cost, q0, v0, ctrl, substeps=SUBSTEPS)
+    loose = rollout(model, data, cost, q0, v0, ctrl, substeps=SUBSTEPS, bound=Bound(float("inf")))
+    assert not loose.cut and loose.total == free.total
+    np.testing.assert_array_equal(loose.qpos, free.qpos)
+    half = 0.5 * free.total
+    tight = rollout(model, data, cost, q0, v0, ctrl, substeps=SUBSTEPS, bound=Bound(half))
+    assert tight.cut and tight.total == float("inf")
+    # Stopped at the first step whose running cost passes the bound.
+    n = int(np.argmax(np.cumsum(free.costs) > half * (1.0 + Bound.SLACK)))
+    np.testing.assert_array_equal(tight.costs[: n + 1], free.costs[: n + 1])
+    assert not tight.costs[n + 1 :].any()
+
+
+def _random_linearisation(H: int = 6, nx: int = 12, na: int = 5) -> Linearisation:
+    rng = np.random.default_rng(7)
+
+    def spd(n: int) -> np.ndarray:
+        m = rng.standard_normal((n, n))
+        return m @ m.T / n + 0.1 * np.eye(n)
+
+    return Linearisation(
+        A=np.eye(nx) + 0.1 * rng.standard_normal((H, nx, nx)),
+        B=0.3 * rng.standard_normal((H, nx, na)),
+        lx=rng.standard_normal((H + 1, nx)),
+        lu=rng.standard_normal((H, na)),
+        lxx=np.stack([spd(nx) for _ in range(H + 1)]),
+        luu=np.stack([spd(na) for _ in range(H)]),
+    )
+
+
+def test_backward_pass_on_threads_equals_the_serial_one() -> None:
+    lin = _random_linearisation()
+    serial = backward_pass(lin, 1e-3)
+    with ThreadPoolExecutor(2) as pool:
+        threaded = backward_pass(lin, 1e-3, pool)
+    assert serial is not None and threaded is not None
+    np.testing.assert_array_equal(threaded[0], serial[0])
+    np.testing.assert_array_equal(threaded[1], serial[1])
+    assert threaded[2:] == serial[2:]
+    assert np.abs(serial[0]).max() > 0.0
+
+
+def test_backward_pass_on_threads_reports_a_non_pd_q_uu() -> None:
+    lin = _random_linearisation()
+    lin.luu[2] = -10.0 * np.eye(lin.luu.shape[1])
+    assert backward_pass(lin, 1e-3) is None
+    with ThreadPoolExecutor(2) as pool:
+        assert backward_pass(lin, 1e-3, pool) is None
+
+
+def test_skews_are_the_rows_cross_product_matrices() -> None:
+    a = np.random.default_rng(1).standard_normal((5, 3))
+    s = _skews(a)
+    for i in range(5):
+        np.testing.assert_array_equal(s[i], _skew(a[i]))
+        np.testing.assert_allclose(s[i] @ [1.0, 2.0, 3.0], np.cross(a[i], [1.0, 2.0, 3.0]), atol=1e-12)
