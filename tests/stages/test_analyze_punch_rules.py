@@ -10,8 +10,15 @@ import pytest
 
 from pipeline.stages.analyze import AnalyzeConfig, AnalyzeInputs, PunchConfig, run
 from pipeline.stages.analyze.body import bodies, facing_frames
-from pipeline.stages.analyze.punches import Candidate, candidates, elbow_angle_deg, hand_track, rule_failed
-from tests.stages.analyze_fixtures import J, keypoints, profile, straight, throw, two_boxers
+from pipeline.stages.analyze.punches import (
+    Candidate,
+    candidates,
+    elbow_angle_deg,
+    hand_track,
+    overlaps,
+    rule_failed,
+)
+from tests.stages.analyze_fixtures import FPS, J, keypoints, minjerk, profile, straight, throw, two_boxers
 
 GUARD_L = np.array([0.3, 0.12, 1.45])
 HEAD_OF_1 = np.array([1.0, 0.0, 1.62])  # athlete 1's head, 1 m away
@@ -85,3 +92,57 @@ def test_rule_thresholds_and_elbow_angle() -> None:
         PunchConfig(max_start_drop=0.0)
     with pytest.raises(ValueError, match="min_elbow_open_deg"):
         PunchConfig(min_elbow_open_deg=200.0)
+
+
+def _double(t0_s: float = 0.6, out_s: float = 0.1, back_frac: float = 0.5) -> np.ndarray:
+    """(100,) a double jab's extension: out, back ``back_frac`` of the way, out again, home."""
+    t = np.arange(100) / FPS
+    t1 = t0_s + out_s + 0.04
+    t2 = t1 + 0.1
+    return (minjerk((t - t0_s) / out_s) - back_frac * minjerk((t - t1) / 0.08)
+            + back_frac * minjerk((t - t2) / 0.08) - minjerk((t - t2 - 0.12) / 0.16))  # fmt: skip
+
+
+def test_a_double_jab_without_a_return_to_the_guard_is_two_punches() -> None:
+    # The fist comes back half way and goes out again: one excursion with two peaks. Split at
+    # the valley each way out is judged on its own and both are punches; without the split the
+    # excursion is one punch (the larger bump).
+    xyz = two_boxers(100, distance_m=1.0)
+    throw(xyz, 0, "left", _double(), straight(GUARD_L, HEAD_OF_1 - np.array([0.3, 0.0, 0.0])))
+    assert _rules(xyz) == [None, None]
+    ev = run(AnalyzeInputs(keypoints(xyz)), AnalyzeConfig()).events
+    assert ev.n_punches == 2 and ev.punch_start_frame[1] >= ev.punch_end_frame[0]
+    assert ev.punch_peak_frame[0] < ev.punch_start_frame[1] < ev.punch_peak_frame[1]
+    whole = dataclasses.replace(PunchConfig(), split_at_valleys=False)
+    assert _punches(xyz, whole) == 1
+
+
+def test_a_shallow_dip_while_the_fist_is_out_is_no_second_punch() -> None:
+    # The fist comes back 2 cm on the way (a tremor, not a new punch): no second peak, one punch.
+    xyz = two_boxers(100, distance_m=1.0)
+    throw(xyz, 0, "left", _double(back_frac=0.05), straight(GUARD_L, HEAD_OF_1 - np.array([0.3, 0.0, 0.0])))
+    assert _rules(xyz) == [None] and _punches(xyz) == 1
+
+
+def test_overlaps_shares_more_than_the_valley_frame() -> None:
+    assert overlaps(10, 20, 15, 30) and overlaps(15, 30, 10, 20) and overlaps(10, 30, 12, 14)
+    assert not overlaps(10, 20, 20, 30) and not overlaps(20, 30, 10, 20) and not overlaps(10, 20, 25, 30)
+
+
+@pytest.mark.parametrize(("advance_m", "rule"), [(0.07, None), (0.01, "forward")])
+def test_a_flattened_punch_that_still_advances_keeps_the_forward_rule(advance_m: float, rule: str | None) -> None:
+    # A fist that leaves the guard by 0.25 m mostly across and up (the way a two-view fit
+    # flattens a body shot) counts when it ends a few cm nearer the opponent; a glove raised
+    # onto the guard without advancing (a block) does not.
+    xyz = two_boxers(100, distance_m=1.0)
+    end = GUARD_L + np.array([advance_m, -0.12, -0.2])
+    throw(xyz, 0, "left", profile(100, 0.6, 0.08), straight(GUARD_L, end))
+    loose = dataclasses.replace(PunchConfig(), min_elbow_open_deg=-180.0, min_extension=0.0)
+    assert _rules(xyz, loose) == [rule]
+    strict = dataclasses.replace(loose, min_forward_m=0.12)  # the former threshold took neither
+    assert _rules(xyz, strict) == ["forward"]
+
+
+def test_min_forward_must_not_be_negative() -> None:
+    with pytest.raises(ValueError, match="min_forward_m"):
+        PunchConfig(min_forward_m=-0.01)

@@ -34,9 +34,11 @@ class PunchConfig:
     min_peak_speed_mps: float = 3.0
     """Smallest peak speed of the fist in the world frame over the punch, on the analysed
     keypoints (m/s, > 0); low, because smoothed 3D results flatten punches."""
-    min_forward_m: float = 0.12
+    min_forward_m: float = 0.04
     """The fist must end this much farther forward (towards the opponent) than it started
-    (m): a punch goes at him; a block, a parry or a hand leaving a clinch grip does not."""
+    (m, >= 0): a punch goes at him; a block, a parry or a hand leaving a clinch grip does not.
+    A margin above the 3D noise, not a punch's reach: a punch the fit flattens (two views) keeps
+    its direction but advances a fraction of the way."""
     min_extension: float = 0.45
     """Smallest shoulder-to-wrist distance at the strike over the arm's length, in [0, 1]."""
     max_start_drop: float = 0.5
@@ -58,6 +60,10 @@ class PunchConfig:
     """A punch starts / ends where the excursion falls below this fraction of its peak, in (0, 1)."""
     max_duration_s: float = 1.0
     """Longer excursions are not punches (a hand held out, a clinch grip), seconds."""
+    split_at_valleys: bool = True
+    """Two punches of one fist thrown without a full return to the guard (a double jab, a body
+    shot then a hook) are one excursion with two peaks: split it at the smallest excursion between
+    the peaks, where the fist turned to go out again, so that each is judged on its own."""
     speed_source: Literal["raw", "analysed"] = "raw"
     """Where the peak glove speed is measured. ``raw``: on the unfiltered triangulation when
     the stage gets it (``punches.raw_peak_speed``: filters and the fit's smoothness prior
@@ -99,6 +105,8 @@ class PunchConfig:
                 f"PunchConfig: edge_frac and arrive_frac must be in (0, 1), min_extension in [0, 1]; got "
                 f"{self.edge_frac}, {self.arrive_frac}, {self.min_extension}"
             )
+        if not self.min_forward_m >= 0.0:
+            raise ValueError(f"PunchConfig.min_forward_m must be >= 0, got {self.min_forward_m}")
         if not (self.max_start_drop > 0 and -180.0 <= self.min_elbow_open_deg <= 180.0):
             raise ValueError(
                 f"PunchConfig: max_start_drop must be > 0 and min_elbow_open_deg in [-180, 180]; "

@@ -29,7 +29,7 @@ from pipeline.schema.association import Association
 from pipeline.schema.detections import Tracks2D
 from pipeline.stages.analyze.body import Body, fill_gaps
 from pipeline.stages.analyze.config import PunchConfig, ViewEvidenceConfig
-from pipeline.stages.analyze.punches import Candidate, Detection, HandTrack, candidates, rule_failed
+from pipeline.stages.analyze.punches import Candidate, Detection, HandTrack, candidates, overlaps, rule_failed
 
 JOINTS: tuple[str, ...] = (
     "left_shoulder", "right_shoulder", "left_hip", "right_hip", "left_wrist", "right_wrist",
@@ -249,7 +249,7 @@ def view_failed(
     clip (an excursion cut by the first or last frame has no way out or back to judge); ``form``, it passes every punch
     rule but those on speed (``MOTION_ONLY``); ``views``, one view shows the wrist at least
     ``vcfg.view_min_excursion_m`` from its guard and at least ``vcfg.view_min_speed_mps`` fast on the way out."""
-    if any(c.start <= d.end and d.start <= c.end for d in found):
+    if any(overlaps(c.start, c.end, d.start, d.end) for d in found):
         return "new"
     if c.start <= 0 or c.end >= sig.ok.shape[1] - 1:
         return "whole"

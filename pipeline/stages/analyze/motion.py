@@ -37,6 +37,7 @@ from pipeline.stages.analyze.punches import (
     Detection,
     HandTrack,
     candidates,
+    overlaps,
     raw_peak_speed,
     rule_failed,
 )
@@ -70,7 +71,7 @@ def motion_failed(
     if rule_failed(c, cfg, fps) is not None:
         return "rules"
     for f in fit_candidates:
-        if c.start <= f.end and f.start <= c.end and rule_failed(f, cfg, fps) in (None, *FORM_RULES):
+        if overlaps(c.start, c.end, f.start, f.end) and rule_failed(f, cfg, fps) in (None, *FORM_RULES):
             return "new"
     n = motion_h.wrist.shape[0]
     if c.start <= 0 or c.end >= n - 1 or c.end <= c.peak or c.peak - c.start < cfg.flattened_min_out_s * fps:
@@ -101,7 +102,7 @@ def flattened_punches(
     for c in candidates(motion_body, motion_h, cfg, clinch):
         if motion_failed(c, fit_h, motion_h, fit_candidates, raw, cfg, motion_body.fps) is not None:
             continue
-        if out and c.start <= out[-1].end:  # one excursion, two bumps: keep the first
+        if out and overlaps(c.start, c.end, out[-1].start, out[-1].end):  # one excursion, two bumps: keep the first
             continue
         score = np.clip((c.excursion_m - cfg.min_excursion_m) / cfg.min_excursion_m + 0.5, 0.0, 1.0)
         score *= np.clip((c.peak_speed_mps - cfg.min_peak_speed_mps) / cfg.min_peak_speed_mps + 0.5, 0.0, 1.0)

@@ -7,7 +7,9 @@ excursion ``D(t) = |r - g|``. Every peak of ``D`` at least ``min_excursion_m`` h
 ``Candidate``: it starts and ends where ``D`` drops below ``edge_frac`` of its peak, and
 its strike is the first frame after the fastest one on the way out where the fist has
 slowed to ``arrive_frac`` of that speed (it has arrived at full extension or on the
-target; also for a hook, whose excursion can be largest mid-arc).
+target; also for a hook, whose excursion can be largest mid-arc). Two peaks of one excursion
+(the fist set off again before it was back at the guard: a double jab, a body shot then a
+hook) are two candidates split at the smallest excursion between them (``split_at_valleys``).
 
 A candidate is a punch when it passes every rule of ``RULES`` (thresholds in
 ``PunchConfig``), the checks a coach makes by eye:
@@ -207,6 +209,19 @@ def raw_peak_speed(
     return max(speeds) if speeds else None
 
 
+def _valleys(exc: np.ndarray, peaks: np.ndarray) -> np.ndarray:
+    """(peaks - 1,) row of the smallest excursion between each two consecutive peaks: where the
+    fist turned from coming back to going out again."""
+    rows = [a + int(np.argmin(exc[a : b + 1])) for a, b in zip(peaks[:-1], peaks[1:], strict=True)]
+    return np.array(rows, dtype=np.int64)
+
+
+def overlaps(start: int, end: int, other_start: int, other_end: int) -> bool:
+    """Two excursions (rows start .. end) share more than one frame; punches split at a valley
+    (``PunchConfig.split_at_valleys``) share that frame only."""
+    return start < other_end and other_start < end
+
+
 def _near_clinch(clinch: np.ndarray | None, n: int, margin: int) -> np.ndarray:
     out = np.zeros(n, dtype=bool)
     if clinch is not None and clinch.any():
@@ -227,11 +242,15 @@ def candidates(body: Body, h: HandTrack, cfg: PunchConfig, clinch: np.ndarray | 
     near_clinch = _near_clinch(clinch, n, int(round(cfg.clinch_margin_s * body.fps)))
     shoulder, _ = body.point(f"{h.hand}_shoulder")
     has_arm = bool(np.isfinite(h.arm_m) and h.arm_m > 0)
+    valleys = _valleys(exc, peaks) if cfg.split_at_valleys else np.zeros(0, dtype=np.int64)
     out: list[Candidate] = []
-    for k0 in peaks:
+    for i, k0 in enumerate(peaks):
         level = cfg.edge_frac * exc[k0]
         a, b = _edge(exc, ok, k0, level, -1), _edge(exc, ok, k0, level, +1)
         a = max(a, k0 - max_out)
+        if valleys.size:  # the fist set off again before it was back: the punch ends there
+            a = max(a, int(valleys[i - 1]) if i > 0 else a)
+            b = min(b, int(valleys[i]) if i < valleys.size else b)
         t_out = a + int(np.argmax(v[a : k0 + 1]))
         v_out = float(v[t_out])
         slow = np.flatnonzero(v[t_out + 1 : b + 1] < cfg.arrive_frac * v_out)
@@ -285,7 +304,7 @@ def detect(body: Body, h: HandTrack, cfg: PunchConfig, clinch: np.ndarray | None
         kp_conf = float(body.confidence[c.start : c.end + 1][:, idx].mean()) if idx else 1.0
         det = Detection(c.hand, c.start, c.peak, c.end, c.fastest, c.excursion_m, c.out_speed_mps,
                         c.peak_speed_mps, c.extension, float(score * kp_conf))  # fmt: skip
-        if out and det.start <= out[-1].end:  # one excursion, two bumps: keep the larger
+        if out and overlaps(det.start, det.end, out[-1].start, out[-1].end):  # one excursion, two bumps: keep the larger
             if det.excursion_m > out[-1].excursion_m:
                 out[-1] = det
             continue
