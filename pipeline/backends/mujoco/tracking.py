@@ -197,7 +197,7 @@ class TrackingCost:
             [np.full(layout.servo_ids.size, weights.w_reg), np.full(layout.residual_ids.size, weights.w_residual)]
         )
         self._feet = [
-            [[p.site_ids[f"{side}_{n}"] for n in FOOT_SITES if f"{side}_{n}" in p.site_ids] for side in ("left", "right")]
+            [[int(p.site_ids[f"{side}_{n}"]) for n in FOOT_SITES if f"{side}_{n}" in p.site_ids] for side in ("left", "right")]
             for p in layout.persons
         ]
 
@@ -209,19 +209,21 @@ class TrackingCost:
         m, ref, lay = self.model, self.ref, self.layout
         rs: list[np.ndarray] = []
         js: list[np.ndarray] = []
+        xpos, xmat, site_xpos, qpos = data.xpos, data.xmat, data.site_xpos, data.qpos
         for i, p in enumerate(lay.persons):
-            proot = data.xpos[p.root_body]
-            R = data.xmat[p.root_body].reshape(3, 3)
+            proot = xpos[p.root_body]
+            R = xmat[p.root_body].reshape(3, 3)
             w, ww = self._sqrt_w_body[t, i], self._sqrt_w_world[t, i]
             sites = ref.site_ids[i]
-            v = data.site_xpos[sites] - proot  # (S, 3)
+            sx = site_xpos[sites]
+            v = sx - proot  # (S, 3)
             local = v @ R  # R^T v per row
             rs.append(((local - ref.site_local_m[t, i]) * w[:, None]).ravel())
-            rs.append(((data.site_xpos[sites] - ref.site_world_m[t, i]) * ww[:, None]).ravel())
+            rs.append(((sx - ref.site_world_m[t, i]) * ww[:, None]).ravel())
             pos_ref, quat_ref = self._ref_root[i][0][t], self._ref_root[i][1][t]
             rs.append(proot - pos_ref)
             drot = np.zeros(3)
-            mujoco.mju_subQuat(drot, data.qpos[p.qpos_adr + 3 : p.qpos_adr + 7], quat_ref)
+            mujoco.mju_subQuat(drot, qpos[p.qpos_adr + 3 : p.qpos_adr + 7], quat_ref)
             rs.append(ROOT_ROT_LEVER_M * drot)
             if with_jac:
                 va = p.qvel_adr
@@ -252,14 +254,16 @@ class TrackingCost:
             return np.zeros(0), (np.zeros((0, self.model.nv)) if with_jac else None)
         rs, js = [], []
         jac = np.zeros((3, self.model.nv))  # not self._jac: rollouts may run on threads
+        J = jac[:2]
+        qvel = data.qvel
+        planted = fc[t].tolist()
         for i in range(len(self.layout.persons)):
             for k in range(2):
-                if not fc[t, i, k]:
+                if not planted[i][k]:
                     continue
                 for sid in self._feet[i][k]:
-                    mujoco.mj_jacSite(self.model, data, jac, None, int(sid))
-                    J = jac[:2]
-                    rs.append(J @ data.qvel)
+                    mujoco.mj_jacSite(self.model, data, jac, None, sid)
+                    rs.append(J @ qvel)
                     if with_jac:
                         js.append(J.copy())
         if not rs:
@@ -416,7 +420,7 @@ class TrackingCost:
         rs, _ = self._skate(data, t, False)
         c += w.w_skate * float(rs @ rs)
         if u is not None:
-            du = u[self._acts] - self._ref_ctrl_acts[t]
+            du = (u if self._acts_all else u[self._acts]) - self._ref_ctrl_acts[t]
             c += float(du @ (self._u_weight * du))
         return c
 
