@@ -62,6 +62,12 @@ class HumanoidConfig:
     contact's creep of planted soles."""
     body_friction: float = 1.0
     """Sliding friction between the athletes' body geoms, > 0."""
+    mesh_foot_sole: Literal["hull", "box"] = "hull"
+    """What a mesh foot (``PhysicsConfig.geometry`` ``mesh``) stands on: ``hull``: its convex
+    hull alone (MuJoCo's plane-mesh collision keeps at most 3 vertices, the lowest one and two
+    of its hull neighbours, so a level foot rests on a few cm of its forefoot); ``box``: also a
+    massless flat box under the hull's sole outline, bottom at its lowest vertex (4 corner
+    contacts, heel to toes)."""
     floor_margin_m: float = 0.008
     """Floor contacts act from this height (m, >= 0), so a landing foot stops before it sinks
     into the soft floor and a standing sole rests a few mm up, as planted keypoints do."""

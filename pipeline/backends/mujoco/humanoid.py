@@ -3,8 +3,10 @@
 Each person ``pid`` becomes a subtree ``p{pid}_pelvis`` with a free root joint
 ``p{pid}_root``, hinge joints ``p{pid}_<joint>`` (three per ball joint, anatomical
 ranges), collision geoms (capsules/spheres/box soles, or convex-hull meshes given
-inline as ``<asset><mesh vertex=...>``; density 985 kg/m³) and one
-site per tracked keypoint ``p{pid}_<keypoint>``.
+inline as ``<asset><mesh vertex=...>``; density 985 kg/m³; with
+``HumanoidConfig.mesh_foot_sole`` ``box`` a mesh foot also gets a massless flat sole box,
+``p{pid}_<side>_foot_sole``, see ``sole_box``) and one site per tracked keypoint
+``p{pid}_<keypoint>``.
 
 Actuation (chosen by a stability test, see ``tests/backends/test_humanoid.py`` and
 the module ``ilqr``): position servos (PD) on every hinge, with gains and
@@ -103,6 +105,42 @@ def _excluded_pairs(skel: Skeleton) -> list[tuple[str, str]]:
     return sorted(pairs)
 
 
+SOLE_BAND_M = 0.008
+"""Foot hull vertices this close above its lowest one outline the sole (``sole_box``)."""
+SOLE_HALF_HEIGHT_M = 0.005
+"""Half height (m) of the flat sole box under a mesh foot."""
+
+
+def sole_box(vertices_m: np.ndarray, band_m: float = SOLE_BAND_M) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flat box under a foot's hull (body frame, z up): centre (3,), half sizes (3,) and
+    quat_wxyz (4,) of a yaw about z. Its outline is the x-y extent of the vertices within
+    ``band_m`` of the lowest one, along their principal horizontal axis; its bottom is at the
+    lowest vertex, ``SOLE_HALF_HEIGHT_M`` × 2 tall. Raises ``ValueError`` for fewer than 3
+    vertices or a degenerate outline."""
+    v = np.asarray(vertices_m, dtype=float).reshape(-1, 3)
+    if v.shape[0] < 3:
+        raise ValueError(f"sole_box: need >= 3 foot vertices, got {v.shape[0]}")
+    zmin = float(v[:, 2].min())
+    low = v[v[:, 2] <= zmin + band_m, :2]
+    mid = low.mean(axis=0)
+    _, _, vt = np.linalg.svd(low - mid, full_matrices=False)
+    ax = vt[0] if vt.shape[0] else np.array([1.0, 0.0])
+    if ax[0] < 0:  # the foot points along +x at rest: keep the yaw small
+        ax = -ax
+    yaw = float(np.arctan2(ax[1], ax[0]))
+    R2 = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+    t = (low - mid) @ R2  # coordinates along (length, width)
+    lo, hi = t.min(axis=0), t.max(axis=0)
+    half_xy = 0.5 * (hi - lo)
+    if not np.all(half_xy > 1e-3):
+        raise ValueError(f"sole_box: the sole outline is degenerate (half sizes {half_xy.tolist()} m)")
+    c_xy = mid + R2 @ (0.5 * (lo + hi))
+    centre = np.array([c_xy[0], c_xy[1], zmin + SOLE_HALF_HEIGHT_M])
+    half = np.array([half_xy[0], half_xy[1], SOLE_HALF_HEIGHT_M])
+    quat = np.array([np.cos(0.5 * yaw), 0.0, 0.0, np.sin(0.5 * yaw)])
+    return centre, half, quat
+
+
 def person_mass_kg(skel: Skeleton, density_kg_m3: float = DENSITY_KG_M3) -> float:
     """Mass from geom volumes (overlaps between a body's geoms counted twice, as MuJoCo does)."""
     return skel.geom_volume_m3() * density_kg_m3
@@ -176,8 +214,15 @@ def _person_xml(
                 # mass and inertia from that hull's volume at the default density.
                 verts = " ".join(_f(v) for v in g.vertices_m)
                 assets.append(f'    <mesh name="{gname}" vertex="{verts}" inertia="convex"/>')
-                sole = ' class="sole"' if k == 0 and b.name.endswith("_foot") else ""
+                is_sole = k == 0 and b.name.endswith("_foot")
+                sole = ' class="sole"' if is_sole else ""
                 lines.append(f'{ind}  <geom {common} type="mesh" mesh="{gname}"{sole}/>')
+                if is_sole and cfg.mesh_foot_sole == "box":
+                    sole_c, half, quat = sole_box(np.asarray(g.vertices_m, dtype=float))
+                    lines.append(
+                        f'{ind}  <geom name="{pre}{b.name}_sole" contype="{ct}" conaffinity="{ca}" type="box" '
+                        f'pos="{_f(sole_c)}" size="{_f(half)}" quat="{_f(quat)}" mass="0" class="sole"/>'
+                    )
             else:
                 raise ValueError(f"unsupported geom kind {g.kind!r} in body {b.name}")
         for sname, spos in b.sites:
@@ -341,5 +386,5 @@ def scene_layout(model: mujoco.MjModel, person_ids: list[int]) -> SceneLayout:
                 mass_kg=float(model.body_subtreemass[root_body]),
             )
         )
-    is_foot = np.array([model.geom(g).name.endswith("_foot_g0") for g in range(model.ngeom)])
+    is_foot = np.array([model.geom(g).name.endswith(("_foot_g0", "_foot_sole")) for g in range(model.ngeom)])
     return SceneLayout(persons=tuple(persons), geom_person=geom_person, geom_is_foot=is_foot)
