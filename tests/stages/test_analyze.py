@@ -73,10 +73,13 @@ def test_punch_types_from_the_path() -> None:
 
 def test_type_rules() -> None:
     cfg = TypeConfig()
-    assert punch_type(PathFeatures(rise=0.9, across=0.0, bulge_m=0.0, level=1.2), True, cfg) == "lead_uppercut"
-    assert punch_type(PathFeatures(rise=0.9, across=0.0, bulge_m=0.15, level=1.2), False, cfg) == "rear_hook"
-    assert punch_type(PathFeatures(rise=0.1, across=0.0, bulge_m=0.0, level=0.4), False, cfg) == "body_shot"
-    assert punch_type(PathFeatures(rise=0.1, across=0.0, bulge_m=0.0, level=float("nan")), False, cfg) == "cross"
+    def f(rise: float = 0.1, bulge: float = 0.0, sag: float = 0.0, climb: float = 0.0, level: float = 1.2) -> PathFeatures:
+        return PathFeatures(rise=rise, across=0.0, bulge=bulge, sag=sag, climb=climb, level=level)
+
+    assert punch_type(f(rise=0.9), True, cfg) == "lead_uppercut"
+    assert punch_type(f(rise=0.9, bulge=0.4), False, cfg) == "rear_hook"
+    assert punch_type(f(level=0.4), False, cfg) == "body_shot"
+    assert punch_type(f(level=float("nan")), False, cfg) == "cross"
     stance = np.array([0, 0, 1, 1, 0, -1, -1])
     assert is_lead("left", stance, 0) and is_lead("right", stance, 6) and not is_lead("left", stance, 5)
     assert is_lead("left", np.zeros(3, dtype=int), 1)  # unknown: orthodox

@@ -1,13 +1,20 @@
 """Punch type from the fist's path, in the thrower's facing frame.
 
-Rules, in order (thresholds in ``TypeConfig``):
+The path's shape is measured against its chord (the straight line from the start to the
+strike) in shares of the chord's length, so that a path the 3D estimate shrinks (a two-view
+fit moves the fist a fraction of the way) keeps its shape. Rules, in order (thresholds in
+``TypeConfig``):
 
-1. **hook** when its path bulges outwards (to the punching side) from the straight line
-   between start and strike by ``hook_min_bulge_m``;
-2. **uppercut** when the fist arrives rising: the upward share of its displacement from
+1. **uppercut** when the path scoops: it sags below the chord by ``uppercut_min_sag`` and
+   the fist climbs from its lowest point to the strike by ``uppercut_min_climb`` (the fist
+   drops from the guard and comes up into the target; a straight punch to the body sinks
+   without coming back up);
+2. **hook** when its path bulges outwards (to the punching side) from the chord by
+   ``hook_min_bulge``;
+3. **uppercut** when the fist arrives rising: the upward share of its displacement from
    the fastest frame of the way out to the strike (the arrival) is at least
-   ``uppercut_min_rise`` (a hook arrives rising too when the guard is low, hence 1 first);
-3. otherwise a straight punch: a **body shot** when the fist at the strike is below
+   ``uppercut_min_rise`` (a hook arrives rising too when the guard is low, hence 2 first);
+4. otherwise a straight punch: a **body shot** when the fist at the strike is below
    ``body_level_frac`` of the way from the opponent's hips to his shoulders, else a
    **jab** (lead hand) or a **cross** (rear hand).
 
@@ -29,21 +36,25 @@ class PathFeatures:
     """Shape of a punch's way out (facing frame: x forward, y left, z up).
 
     Fields: rise, across: upward and inward shares of the arrival direction, in [-1, 1];
-    bulge_m: largest outward distance of the path from its chord; level: fist height at
-    the strike as a fraction of the opponent's hip-to-shoulder height (NaN without one).
+    bulge: largest outward distance of the path from its chord, sag: largest distance below
+    the chord, climb: rise of the fist from the path's lowest point to the strike, all three
+    over the chord's length (>= 0; 0 for a chord shorter than 1 mm); level: fist height at the
+    strike as a fraction of the opponent's hip-to-shoulder height (NaN without one).
     """
 
     rise: float
     across: float
-    bulge_m: float
+    bulge: float
+    sag: float
+    climb: float
     level: float
 
 
 def path_features(
     r: np.ndarray, start: int, fastest: int, peak: int, hand: str, fist_z: float, opp_hip_z: float, opp_shoulder_z: float
 ) -> PathFeatures:
-    """Features of the path ``r`` (frames, 3) from ``start`` to ``peak`` (row indices),
-    arriving from ``fastest``."""
+    """Features of the path ``r`` (frames, 3; facing frame, metres) from ``start`` to ``peak``
+    (row indices), arriving from ``fastest``."""
     out = 1.0 if hand == "left" else -1.0
     k0 = min(max(start, fastest), peak - 1) if peak > start else start
     a = r[peak] - r[k0]
@@ -52,21 +63,24 @@ def path_features(
     seg = r[start : peak + 1] - r[start]
     chord = r[peak] - r[start]
     cn = float(np.linalg.norm(chord))
-    if cn > 1e-9:
+    bulge = sag = climb = 0.0
+    if cn > 1e-3:
         c = chord / cn
         dev = seg - np.outer(seg @ c, c)
-        bulge = float(np.max(out * dev[:, 1]))
-    else:
-        bulge = 0.0
+        bulge = max(0.0, float(np.max(out * dev[:, 1]))) / cn
+        sag = max(0.0, float(np.max(-dev[:, 2]))) / cn
+        climb = float(seg[-1, 2] - np.min(seg[:, 2])) / cn
     span = opp_shoulder_z - opp_hip_z
     level = (fist_z - opp_hip_z) / span if np.isfinite(span) and span > 0.1 else float("nan")
-    return PathFeatures(rise=float(u[2]), across=float(-out * u[1]), bulge_m=bulge, level=level)
+    return PathFeatures(rise=float(u[2]), across=float(-out * u[1]), bulge=bulge, sag=sag, climb=climb, level=level)
 
 
 def punch_type(f: PathFeatures, lead: bool, cfg: TypeConfig) -> str:
     """The ``PUNCH_TYPES`` value of a punch with features ``f`` thrown with the lead (or rear) hand."""
     side = "lead" if lead else "rear"
-    if f.bulge_m >= cfg.hook_min_bulge_m:
+    if f.sag >= cfg.uppercut_min_sag and f.climb >= cfg.uppercut_min_climb:
+        return f"{side}_uppercut"
+    if f.bulge >= cfg.hook_min_bulge:
         return f"{side}_hook"
     if f.rise >= cfg.uppercut_min_rise:
         return f"{side}_uppercut"

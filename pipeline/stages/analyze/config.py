@@ -158,22 +158,32 @@ class ViewEvidenceConfig:
 @dataclass(frozen=True)
 class TypeConfig:
     """Punch type rules, on the fist's path from the guard to the strike in the boxer's
-    facing frame (x towards the opponent, y to his left, z up)."""
+    facing frame (x towards the opponent, y to his left, z up). Path shapes are measured in
+    shares of the chord (the straight line from start to strike), so that a path the 3D
+    estimate shrinks keeps its type."""
 
+    uppercut_min_sag: float = 0.2
+    """An uppercut scoops: its path sags below the chord by at least this share of the
+    chord's length, in (0, 1) ..."""
+    uppercut_min_climb: float = 0.06
+    """... and the fist climbs from the path's lowest point to the strike by at least this
+    share of the chord's length, in (0, 1) (a straight body shot sinks and stays low)."""
     uppercut_min_rise: float = 0.6
-    """An uppercut arrives rising: the upward share of its arrival direction (from the
-    fastest frame of the way out to the strike) is at least this, in (0, 1)."""
-    hook_min_bulge_m: float = 0.08
-    """A hook's path bulges outwards (to the punching side) from the straight line between
-    its start and its strike by at least this (m, > 0)."""
+    """An uppercut that does not scoop arrives rising: the upward share of its arrival
+    direction (from the fastest frame of the way out to the strike) is at least this, in (0, 1)."""
+    hook_min_bulge: float = 0.16
+    """A hook's path bulges outwards (to the punching side) from the chord by at least this
+    share of the chord's length, in (0, 1)."""
     body_level_frac: float = 0.9
     """A straight punch is a body shot when the fist at the strike is below this fraction of
     the way from the opponent's mid-hip to his mid-shoulder height, in (0, 1.5)."""
 
     def __post_init__(self) -> None:
-        _positive("TypeConfig", hook_min_bulge_m=self.hook_min_bulge_m)
-        if not 0.0 < self.uppercut_min_rise < 1.0:
-            raise ValueError(f"TypeConfig.uppercut_min_rise must be in (0, 1), got {self.uppercut_min_rise}")
+        shares = {"uppercut_min_sag": self.uppercut_min_sag, "uppercut_min_climb": self.uppercut_min_climb,
+                  "uppercut_min_rise": self.uppercut_min_rise, "hook_min_bulge": self.hook_min_bulge}  # fmt: skip
+        bad = {k: v for k, v in shares.items() if not 0.0 < v < 1.0}
+        if bad:
+            raise ValueError(f"TypeConfig: must be in (0, 1), got {bad}")
         if not 0.0 < self.body_level_frac < 1.5:
             raise ValueError(f"TypeConfig.body_level_frac must be in (0, 1.5), got {self.body_level_frac}")
 
