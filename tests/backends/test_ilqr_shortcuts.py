@@ -11,18 +11,27 @@ import pytest
 
 mujoco = pytest.importorskip("mujoco")
 
+import pipeline.backends.mujoco.ilqr as ilqr  # noqa: E402
 from pipeline.backends.mujoco.ilqr import (  # noqa: E402
     Bound,
     ILQRConfig,
     Linearisation,
+    Trajectory,
     Workers,
     _candidates,
     backward_pass,
     linearise,
+    optimise,
     rollout,
 )
 from pipeline.backends.mujoco.tracking import _skew, _skews  # noqa: E402
-from tests.backends.test_ilqr_parallel import SUBSTEPS, _problem  # noqa: E402
+from tests.backends.test_ilqr_parallel import SUBSTEPS, PushedTipCost, _problem  # noqa: E402
+
+
+class NonNegativeCost(PushedTipCost):
+    """``PushedTipCost`` (a sum of squares) marked as such: ``optimise`` may stop rollouts."""
+
+    non_negative = True
 
 
 def _line_search_inputs() -> tuple:
@@ -125,3 +134,29 @@ def test_skews_are_the_rows_cross_product_matrices() -> None:
     for i in range(5):
         np.testing.assert_array_equal(s[i], _skew(a[i]))
         np.testing.assert_allclose(s[i] @ [1.0, 2.0, 3.0], np.cross(a[i], [1.0, 2.0, 3.0]), atol=1e-12)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_optimise_with_stopped_rollouts_gives_the_same_result(threads: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    model, cost, ctrl = _problem()
+    marked = NonNegativeCost(cost.target)
+    cfg = ILQRConfig(max_iter=6, rel_tol=0.0, deriv_every=4, mu_init=1e-6)
+    q0, v0 = np.array([0.3, -0.8]), np.zeros(2)
+    stopped: list[bool] = []
+    real = ilqr.rollout
+
+    def recording(*args: object, **kwargs: object) -> Trajectory:
+        tr = real(*args, **kwargs)  # type: ignore[arg-type]
+        stopped.append(tr.cut)
+        return tr
+
+    monkeypatch.setattr(ilqr, "rollout", recording)
+    plain = optimise(model, mujoco.MjData(model), cost, q0, v0, ctrl, cfg, substeps=SUBSTEPS, threads=threads)
+    assert not any(stopped)  # an unmarked cost: no bound
+    fast = optimise(model, mujoco.MjData(model), marked, q0, v0, ctrl, cfg, substeps=SUBSTEPS, threads=threads)
+    assert any(stopped)
+    assert len(plain.cost_history) > 2 and plain.cost_history[-1] < plain.cost_history[0]
+    assert fast.cost_history == plain.cost_history
+    assert fast.iterations == plain.iterations and fast.mu == plain.mu
+    np.testing.assert_array_equal(fast.traj.qpos, plain.traj.qpos)
+    np.testing.assert_array_equal(fast.traj.ctrl, plain.traj.ctrl)

@@ -14,7 +14,9 @@ One iteration:
    success).
 3. *Forward pass*: closed-loop rollouts u = ū + K (x ⊖ x̄) + α k for log-spaced
    α ∈ [α_min, 1], on the worker threads; the lowest total cost is accepted if it is
-   below the nominal's, so the cost decreases monotonically. (Not ``mujoco.rollout``:
+   below the nominal's, so the cost decreases monotonically; for a cost marked
+   ``non_negative``, a rollout stops once its running cost exceeds the lowest total so
+   far, which changes no choice. (Not ``mujoco.rollout``:
    it rolls out open-loop controls and neither applies the feedback per step nor the
    cost's state-dependent inputs per substep, nor returns the warm start.)
 
@@ -58,6 +60,8 @@ class Cost(Protocol):
     A cost whose ``prepare`` and ``value`` may run on several threads at once (each on its
     own ``data``, alongside ``derivatives`` on the caller's thread) says so with a class
     attribute ``thread_safe = True``; ``optimise`` then uses worker threads by default.
+    A cost whose every value is >= 0 says so with ``non_negative = True``; ``optimise`` then
+    stops line-search rollouts whose running cost already exceeds the best total (``Bound``).
     """
 
     def prepare(self, model: mujoco.MjModel, data: mujoco.MjData, t: int, sub: int = 0) -> None:
@@ -540,8 +544,9 @@ def optimise(
                 best: Trajectory | None = None
                 best_alpha = 0.0
                 c0 = time.perf_counter()
+                bound = Bound(nominal.total) if getattr(cost, "non_negative", False) else None
                 cands = _candidates(
-                    model, data, cost, qpos0, qvel0, nominal, K, k, alphas, act, t0, warm0, substeps, workers, Bound(nominal.total)
+                    model, data, cost, qpos0, qvel0, nominal, K, k, alphas, act, t0, warm0, substeps, workers, bound
                 )
                 for a, cand in zip(alphas, cands, strict=True):
                     if cand.total < (best.total if best is not None else nominal.total):

@@ -122,6 +122,9 @@ class TrackingCost:
     thread_safe = True
     """``prepare`` and ``value`` keep their scratch per call or per thread (the collision
     probe's data), so the iLQR may roll out and differentiate on worker threads."""
+    non_negative = True
+    """Every term is a weighted square with a weight >= 0 (``CostWeights`` refuses negative
+    ones), so the iLQR may stop a line-search rollout once its cost exceeds the best total."""
 
     def __init__(
         self,
