@@ -295,3 +295,38 @@ def test_inverse_kinematics_posture_weight_stops_free_joints_drifting() -> None:
     assert free_drift > 0.8
     assert held_drift < 0.3
     assert abs(held_err - free_err) < 0.0005
+
+
+def test_inverse_kinematics_holds_a_hinge_at_its_limit_out_of_the_step() -> None:
+    """Knee keypoints 5 cm behind the knees ask for hyperextension past the knee's limit,
+    with both feet planted flat. Clamping each step after the solve keeps the ankle and hip
+    moves made as if the knee had given way: the feet end up tilted by ~10 degrees. Solving the
+    step again without the held knee keeps them level and fits the keypoints better."""
+    kp = _rest_keypoints(1.0, n_frames=3)
+    xyz = kp.xyz_m.copy()
+    for side in ("left", "right"):
+        xyz[:, 0, COCO17_FEET.index(f"{side}_knee"), 0] -= 0.05
+    scene = _one_person_scene()
+    targets, weight = site_targets(scene, kp.replace(xyz_m=xyz), [0])
+    flat = np.ones((3, 1, 2), dtype=bool)
+    m = scene.model
+    d = mujoco.MjData(m)
+    feet = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"p0_{s}_foot") for s in ("left", "right")]
+    knees = [m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"p0_{s}_knee")] for s in ("left", "right")]
+
+    def solve(active: bool) -> tuple[float, float, np.ndarray]:
+        """(worst foot tilt deg, mean site error m, knee angles) of the last frame."""
+        q = inverse_kinematics(scene, targets, weight, flat=flat, sole_lift_m=0.005, limit_active_set=active)[-1]
+        d.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        tilt = max(float(np.degrees(np.arccos(np.clip(d.xmat[b].reshape(3, 3)[2, 2], -1.0, 1.0)))) for b in feet)
+        err = float(np.linalg.norm(d.site_xpos[scene.site_ids[0]] - targets[-1, 0], axis=-1).mean())
+        return tilt, err, q[knees]
+
+    tilt_clamped, err_clamped, knee_clamped = solve(False)
+    tilt_held, err_held, knee_held = solve(True)
+    lo = m.jnt_range[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "p0_left_knee"), 0]
+    np.testing.assert_allclose(np.concatenate([knee_clamped, knee_held]), lo, atol=1e-6)  # both at the limit
+    assert tilt_clamped > 5.0
+    assert tilt_held < 1.0
+    assert err_held < 0.5 * err_clamped

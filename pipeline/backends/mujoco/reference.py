@@ -67,6 +67,7 @@ def inverse_kinematics(
     flat_weight: float = 100.0,
     restart_tol_m: float = 0.05,
     posture_weight: float = 0.0,
+    limit_active_set: bool = True,
 ) -> np.ndarray:
     """Per-frame damped least squares of sites onto targets, warm-started in time.
 
@@ -82,7 +83,11 @@ def inverse_kinematics(
     ``posture_weight · Σ (hinge − rest)²`` (rad²; the sites' residuals are in m): the
     keypoints leave some joints free (trunk twist against the shoulder girdle, hip
     twist against the knee's), and each frame, warm-started from the last, let them
-    drift to their limits. Returns qpos (frames, nq), hinge angles clamped to their ranges.
+    drift to their limits. ``limit_active_set``: a hinge at a limit that a step pushes
+    further out is held for that step and the step solved again without it; False clamps
+    the step after the solve, and the joints that moved with it stay moved (a straight knee
+    then leaves a flat-planted foot tilted toes down). Returns qpos (frames, nq), hinge
+    angles clamped to their ranges.
     """
     m, lay = scene.model, scene.layout
     d = mujoco.MjData(m)
@@ -139,7 +144,22 @@ def inverse_kinematics(
                 JtJ[hv, hv] += posture_weight
                 Jtr[hv] += posture_weight * (q[hq] - m.qpos0[hq])
             lam = damping * (10.0 if (cold and it < 10) else 1.0)
-            dq[:] = -np.linalg.solve(JtJ + lam * np.eye(m.nv) + 1e-6 * np.diag(np.diag(JtJ)), Jtr)
+            A = JtJ + lam * np.eye(m.nv) + 1e-6 * np.diag(np.diag(JtJ))
+            dq[:] = -np.linalg.solve(A, Jtr)
+            if limit_active_set:
+                # Hinges at a limit that the step pushes further out are held there and the
+                # step is solved again without them, so the other joints do not move as if
+                # they had given way.
+                free = np.ones(m.nv, dtype=bool)
+                for _ in range(4):
+                    out_lo = (q[hq] <= lo + 1e-9) & (dq[hv] < 0)
+                    out_hi = (q[hq] >= hi - 1e-9) & (dq[hv] > 0)
+                    held = hv[(out_lo | out_hi) & free[hv]]
+                    if held.size == 0:
+                        break
+                    free[held] = False
+                    dq[:] = 0.0
+                    dq[free] = -np.linalg.solve(A[np.ix_(free, free)], Jtr[free])
             mujoco.mj_integratePos(m, q, dq, 1.0)
             q[hq] = np.clip(q[hq], lo, hi)
 
