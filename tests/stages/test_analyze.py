@@ -76,7 +76,7 @@ def test_type_rules() -> None:
     def f(rise: float = 0.1, bulge: float = 0.0, sag: float = 0.0, climb: float = 0.0, level: float = 1.2) -> PathFeatures:
         return PathFeatures(rise=rise, across=0.0, bulge=bulge, sag=sag, climb=climb, level=level)
 
-    assert punch_type(f(rise=0.9), True, cfg) == "lead_uppercut"
+    assert punch_type(f(rise=0.9, sag=0.15), True, cfg) == "lead_uppercut"
     assert punch_type(f(rise=0.9, bulge=0.4), False, cfg) == "rear_hook"
     assert punch_type(f(level=0.4), False, cfg) == "body_shot"
     assert punch_type(f(level=float("nan")), False, cfg) == "cross"

@@ -92,6 +92,23 @@ def test_a_scooping_uppercut_that_arrives_flat_is_found_as_one() -> None:
     assert ev.n_punches == 1 and ev.punch_type.tolist() == ["lead_uppercut"], ev.punch_type
 
 
+def test_a_rising_arrival_makes_an_uppercut_only_after_a_dip() -> None:
+    """Both paths arrive steeply rising; the one that went straight up from the guard (the 3D
+    estimate tilting a straight punch) is a jab or a cross, the one that dipped first an uppercut."""
+    cfg = TypeConfig()
+    frames = minjerk(np.linspace(0.0, 1.0, 8))
+    tilted = straight(GUARD, np.array([0.15, 0.0, 0.22]))(frames)
+    # dips a little (less than a scoop) before going up
+    dipped = bezier(
+        GUARD, np.array([0.03, 0.0, -0.04]), np.array([0.17, 0.0, 0.0]), np.array([0.2, 0.0, 0.22])
+    )(frames)
+    for r, lead, want in ((tilted, True, "jab"), (tilted, False, "cross"), (dipped, True, "lead_uppercut")):
+        fastest = int(np.argmax(np.linalg.norm(np.diff(r, axis=0), axis=1)))
+        f = path_features(r, 0, fastest, 7, "left", 1.2, 0.0, 1.0)
+        assert f.rise >= cfg.uppercut_min_rise and f.sag < cfg.uppercut_min_sag, f
+        assert punch_type(f, lead, cfg) == want, f
+
+
 @pytest.mark.parametrize(
     "field", ["uppercut_min_sag", "uppercut_min_climb", "uppercut_min_rise", "hook_min_bulge"]
 )
@@ -99,3 +116,6 @@ def test_a_scooping_uppercut_that_arrives_flat_is_found_as_one() -> None:
 def test_type_shares_outside_0_1_are_rejected(field: str, value: float) -> None:
     with pytest.raises(ValueError, match=field):
         TypeConfig(**{field: value})
+    if value != 0.0:
+        with pytest.raises(ValueError, match="uppercut_rise_min_sag"):
+            TypeConfig(uppercut_rise_min_sag=value)

@@ -13,7 +13,9 @@ fit moves the fist a fraction of the way) keeps its shape. Rules, in order (thre
    ``hook_min_bulge``;
 3. **uppercut** when the fist arrives rising: the upward share of its displacement from
    the fastest frame of the way out to the strike (the arrival) is at least
-   ``uppercut_min_rise`` (a hook arrives rising too when the guard is low, hence 2 first);
+   ``uppercut_min_rise`` (a hook arrives rising too when the guard is low, hence 2 first), after
+   a shallower scoop: its path dips below the chord by ``uppercut_rise_min_sag`` (a fist going
+   straight up from the guard is a straight punch the 3D estimate tilted);
 4. otherwise a straight punch: a **body shot** when the fist at the strike is below
    ``body_level_frac`` of the way from the opponent's hips to his shoulders, else a
    **jab** (lead hand) or a **cross** (rear hand).
@@ -82,7 +84,7 @@ def punch_type(f: PathFeatures, lead: bool, cfg: TypeConfig) -> str:
         return f"{side}_uppercut"
     if f.bulge >= cfg.hook_min_bulge:
         return f"{side}_hook"
-    if f.rise >= cfg.uppercut_min_rise:
+    if f.rise >= cfg.uppercut_min_rise and f.sag >= cfg.uppercut_rise_min_sag:
         return f"{side}_uppercut"
     if np.isfinite(f.level) and f.level < cfg.body_level_frac:
         return "body_shot"

@@ -169,8 +169,11 @@ class TypeConfig:
     """... and the fist climbs from the path's lowest point to the strike by at least this
     share of the chord's length, in (0, 1) (a straight body shot sinks and stays low)."""
     uppercut_min_rise: float = 0.6
-    """An uppercut that does not scoop arrives rising: the upward share of its arrival
-    direction (from the fastest frame of the way out to the strike) is at least this, in (0, 1)."""
+    """An uppercut with a shallower scoop arrives rising: the upward share of its arrival
+    direction (from the fastest frame of the way out to the strike) is at least this, in (0, 1) ..."""
+    uppercut_rise_min_sag: float = 0.1
+    """... and its path still dips below the chord by at least this share of the chord's length,
+    in [0, 1) (a fist going straight up from the guard is a straight punch the 3D estimate tilted)."""
     hook_min_bulge: float = 0.16
     """A hook's path bulges outwards (to the punching side) from the chord by at least this
     share of the chord's length, in (0, 1)."""
@@ -184,6 +187,8 @@ class TypeConfig:
         bad = {k: v for k, v in shares.items() if not 0.0 < v < 1.0}
         if bad:
             raise ValueError(f"TypeConfig: must be in (0, 1), got {bad}")
+        if not 0.0 <= self.uppercut_rise_min_sag < 1.0:
+            raise ValueError(f"TypeConfig.uppercut_rise_min_sag must be in [0, 1), got {self.uppercut_rise_min_sag}")
         if not 0.0 < self.body_level_frac < 1.5:
             raise ValueError(f"TypeConfig.body_level_frac must be in (0, 1.5), got {self.body_level_frac}")
 
