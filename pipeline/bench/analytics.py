@@ -22,7 +22,7 @@ system temp dir; created, and its stages run up to the fit, when missing or stal
 ``pose2sim_session``), or of a session folder given as ``pose2sim`` (read as it is). The row
 is skipped, with the reason logged, when the shared data or the 2D models are absent.
 
-The thresholds were tuned on seeds 0-7 (``TUNING_SEEDS``); the default seeds are others.
+The thresholds were tuned on ``TUNING_SEEDS``; the default seeds (``HELD_OUT_SEEDS``) are others.
 """
 
 from __future__ import annotations
@@ -39,9 +39,10 @@ from pipeline.schema.keypoints3d import Keypoints3D
 
 log = logging.getLogger(__name__)
 
-TUNING_SEEDS: tuple[int, ...] = (0, 1, 2, 3, 4, 5, 6, 7)
-"""Seeds the analytics' thresholds were tuned on."""
-HELD_OUT_SEEDS: tuple[int, ...] = (10, 11, 12)
+TUNING_SEEDS: tuple[int, ...] = (0, 1, 2, 3, 4, 5, 6, 7, 10, 11, 12)
+"""Seeds the analytics' thresholds were tuned on, or whose errors a rule was written after
+(10-12, once the held-out set: see docs/design/analytics.md)."""
+HELD_OUT_SEEDS: tuple[int, ...] = (13, 14, 15, 16, 17, 18, 19)
 """The default seeds: never looked at while tuning."""
 FOOTAGE = "footage"
 """``pose2sim`` value: the session of ``cornerman bench footage`` (``pose2sim_session``)."""
