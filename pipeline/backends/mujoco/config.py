@@ -161,8 +161,32 @@ class ReferenceConfig:
     """Gaussian sigma (frames, >= 0) smoothing the reference's velocities and
     accelerations for the feed-forward (the target positions are not smoothed)."""
 
+    balance: Literal["none", "zmp"] = "none"
+    """``zmp``: move each athlete's body above the planted feet (the legs re-solved, the feet
+    held) so that the zero-moment point of the centre of mass stays inside the planted
+    feet's support (``balance.balance_reference``); ``none``: the reference as fitted."""
+    balance_support: Literal["planted", "low"] = "planted"
+    """With ``balance`` ``zmp``: the feet whose sole points make the support polygon (and are
+    held): ``planted`` (the reference's planted feet) or ``low`` (also any foot whose lowest
+    sole point is below 5 cm, pivoting or sliding)."""
+    balance_margin_m: float = 0.02
+    """With ``balance`` ``zmp``: how far inside the support polygon's edge (m, >= 0) the ZMP is kept."""
+    balance_smooth_frames: float = 2.0
+    """Gaussian sigma (frames, >= 0) of the centre-of-mass path whose acceleration gives the ZMP."""
+    balance_w_vel: float = 1e-4
+    """Weight of the offset's squared velocity (s², against the ZMP's m²), >= 0."""
+    balance_w_acc: float = 1e-6
+    """Weight of the offset's squared acceleration (s⁴, against the ZMP's m²), >= 0."""
+    balance_w_size: float = 1e-2
+    """Weight of the offset's squared size (against the ZMP's m²), >= 0."""
+    balance_rounds: int = 2
+    """Solve-and-move rounds (>= 1): the legs' mass makes the CoM move less than the body above them."""
+
     def __post_init__(self) -> None:
-        _check(self, non_negative=("separation_clearance_m", "ik_posture_weight", "feedforward_friction", "feedforward_smooth_frames"))
+        _check(self, non_negative=("separation_clearance_m", "ik_posture_weight", "feedforward_friction", "feedforward_smooth_frames",
+                                   "balance_margin_m", "balance_smooth_frames", "balance_w_vel", "balance_w_acc", "balance_w_size"))
+        if isinstance(self.balance_rounds, bool) or not isinstance(self.balance_rounds, int) or self.balance_rounds < 1:
+            raise ValueError(f"ReferenceConfig.balance_rounds must be an integer >= 1, got {self.balance_rounds!r}")
 
 
 @dataclass(frozen=True)

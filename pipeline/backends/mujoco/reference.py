@@ -13,6 +13,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from pipeline.backends.mujoco.config import ReferenceConfig
 from pipeline.backends.mujoco.humanoid import SceneLayout
 from pipeline.backends.mujoco.scene import Scene, build_scene
 from pipeline.backends.mujoco.schedule import contact_inverse_dynamics_point, foot_site_ids, servo_schedule
@@ -276,6 +277,7 @@ def build_reference(
     separation_clearance_m: float = 0.003,
     posture_weight: float = 0.0,
     sole_m: np.ndarray | None = None,
+    balance: ReferenceConfig | None = None,
 ) -> tuple[Reference, np.ndarray, np.ndarray]:
     """IK reference + body-frame targets. Returns (reference, targets_world, weight).
     ``sole_m``: (persons,) height of the foot keypoints above the sole (default: measured
@@ -292,7 +294,11 @@ def build_reference(
     the IK reference is freed of inter-person overlap (``separate_persons``: minimal
     change of all DOFs) and the tracked targets become the reference's own sites:
     the optimiser then tracks a contact-free, reachable motion instead of fighting
-    keypoints that pass through the other athlete (the synthetic clinches do)."""
+    keypoints that pass through the other athlete (the synthetic clinches do).
+
+    ``balance``: a config whose ``balance`` is ``zmp`` moves each athlete's body above the
+    planted feet after the IK (and before the separation) so that the zero-moment point
+    stays over them (``balance.balance_reference``; needs ``plant``); None or ``none``: not."""
     m, lay = scene.model, scene.layout
     contact: np.ndarray | None = None
     if plant:
@@ -303,6 +309,10 @@ def build_reference(
         scene, targets, weight, flat=contact if flat_feet else None, sole_lift_m=sole_lift_m, posture_weight=posture_weight
     )
     F, P, S = weight.shape
+    if balance is not None and balance.balance != "none" and contact is not None:
+        from pipeline.backends.mujoco.balance import balance_reference
+
+        qref, _ = balance_reference(scene, qref, contact, kp.fps, balance, posture_weight=posture_weight, sole_lift_m=sole_lift_m)
     if separate and P > 1:
         qref = separate_reference(scene, qref, clearance_m=separation_clearance_m)
     vref = reference_velocity(m, qref, kp.fps)
