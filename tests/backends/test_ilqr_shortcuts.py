@@ -4,6 +4,7 @@ products on worker threads returns the serial gains bit for bit."""
 
 from __future__ import annotations
 
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -160,3 +161,49 @@ def test_optimise_with_stopped_rollouts_gives_the_same_result(threads: int, monk
     assert fast.iterations == plain.iterations and fast.mu == plain.mu
     np.testing.assert_array_equal(fast.traj.qpos, plain.traj.qpos)
     np.testing.assert_array_equal(fast.traj.ctrl, plain.traj.ctrl)
+
+
+class ThreadSafeDerivatives(PushedTipCost):
+    """``PushedTipCost`` whose derivatives keep no shared scratch: they may run on threads."""
+
+    derivatives_thread_safe = True
+
+    def __init__(self, target: np.ndarray) -> None:
+        super().__init__(target)
+        self.threads: set[str] = set()
+
+    def derivatives(
+        self, model: mujoco.MjModel, data: mujoco.MjData, t: int, u: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        self.threads.add(threading.current_thread().name)
+        jac = np.zeros((3, model.nv))
+        mujoco.mj_jacSite(model, data, jac, None, 0)
+        r = data.site_xpos[0] - self.target
+        nv = model.nv
+        lx, lxx = np.zeros(2 * nv), np.zeros((2 * nv, 2 * nv))
+        lx[:nv] = 20.0 * jac.T @ r + 0.1 * t
+        lxx[:nv, :nv] = 20.0 * jac.T @ jac
+        lx[nv:] = 0.02 * data.qvel
+        lxx[nv:, nv:] = 0.02 * np.eye(nv)
+        if u is None:
+            return lx, np.zeros(model.nu), lxx, np.zeros((model.nu, model.nu))
+        return lx, 2e-3 * u, lxx, 2e-3 * np.eye(model.nu)
+
+
+def test_cost_derivatives_on_threads_equal_the_serial_ones() -> None:
+    model, cost, ctrl = _problem()
+    safe = ThreadSafeDerivatives(cost.target)
+    traj = rollout(model, mujoco.MjData(model), safe, np.array([0.3, -0.8]), np.zeros(2), ctrl, substeps=SUBSTEPS)
+    act = np.arange(model.nu)
+    cfg = ILQRConfig(deriv_every=3)
+    first = linearise(model, mujoco.MjData(model), safe, traj, cfg, act, t0=4, substeps=SUBSTEPS)
+    # Re-using the dynamics: no finite differences, the cost derivatives go to the threads.
+    serial = linearise(model, mujoco.MjData(model), safe, traj, cfg, act, t0=4, dynamics=first, substeps=SUBSTEPS)
+    safe.threads.clear()
+    with Workers(model, 2) as w:
+        threaded = linearise(model, mujoco.MjData(model), safe, traj, cfg, act, t0=4, dynamics=first, substeps=SUBSTEPS, workers=w)
+    assert safe.threads and all(name.startswith("ilqr") for name in safe.threads)
+    assert np.abs(serial.lx[:, :2] - serial.lx[0, :2]).max() > 1e-3  # they differ along the horizon
+    for name in ("lx", "lu", "lxx", "luu"):
+        np.testing.assert_array_equal(getattr(threaded, name), getattr(serial, name), err_msg=name)
+        np.testing.assert_array_equal(getattr(threaded, name), getattr(first, name), err_msg=name)

@@ -60,6 +60,9 @@ class Cost(Protocol):
     A cost whose ``prepare`` and ``value`` may run on several threads at once (each on its
     own ``data``, alongside ``derivatives`` on the caller's thread) says so with a class
     attribute ``thread_safe = True``; ``optimise`` then uses worker threads by default.
+    A cost whose ``derivatives`` may also run on several threads at once (each on its own
+    ``data``) says so with ``derivatives_thread_safe = True``: without finite differences
+    to compute (``ILQRConfig.jacobian_reuse``), ``linearise`` spreads them over the threads.
     A cost whose every value is >= 0 says so with ``non_negative = True``; ``optimise`` then
     stops line-search rollouts whose running cost already exceeds the best total (``Bound``).
     """
@@ -327,7 +330,9 @@ def linearise(
     ``dynamics``: a previous linearisation whose A, B are reused (only the cost
     derivatives are recomputed; ``ILQRConfig.jacobian_reuse``). ``workers``: the knots'
     finite differences run on its threads, each on its own data, while this thread
-    computes the cost derivatives on ``data`` (the same numbers as without it)."""
+    computes the cost derivatives on ``data``; without knots, the cost derivatives of a
+    cost marked ``derivatives_thread_safe`` run on its threads (the same numbers either
+    way)."""
     H = traj.ctrl.shape[0]
     nv = model.nv
     nx, na = 2 * nv, active.size
@@ -349,22 +354,29 @@ def linearise(
         A_t, B_t = knot_jacobians(model, dd, cost, traj.qpos[t], traj.qvel[t], traj.warmstart[t], traj.ctrl[t], t0 + t, cfg, substeps)
         return A_t, B_t[:, active], tick() - c0
 
-    pool = workers.pool if workers is not None else None
-    c_start = tick()
-    futures = [pool.submit(fd, t) for t in knots] if pool is not None else []
-    for t in range(H + 1):
-        c0 = tick()
-        _set_state(model, data, traj.qpos[t], traj.qvel[t], traj.warmstart[t])
+    def cost_at(t: int, d: mujoco.MjData | None = None) -> None:
+        dd = d if d is not None else workers.data()  # type: ignore[union-attr]
+        _set_state(model, dd, traj.qpos[t], traj.qvel[t], traj.warmstart[t])
         u = traj.ctrl[t] if t < H else None
         if u is not None:
-            data.ctrl[:] = u
-        mujoco.mj_forward(model, data)
-        lx, lu, lxx, luu = cost.derivatives(model, data, t0 + t, u)
-        lin.seconds_cost += tick() - c0
+            dd.ctrl[:] = u
+        mujoco.mj_forward(model, dd)
+        lx, lu, lxx, luu = cost.derivatives(model, dd, t0 + t, u)
         lin.lx[t], lin.lxx[t] = lx, lxx
         if u is not None:
             lin.lu[t] = lu[active]
             lin.luu[t] = luu[np.ix_(active, active)]
+
+    pool = workers.pool if workers is not None else None
+    c_start = tick()
+    futures = [pool.submit(fd, t) for t in knots] if pool is not None else []
+    if pool is not None and not knots and getattr(cost, "derivatives_thread_safe", False):
+        # No finite differences to overlap with: the cost derivatives go to the idle threads.
+        list(pool.map(cost_at, range(H + 1)))
+    else:
+        for t in range(H + 1):
+            cost_at(t, data)
+    lin.seconds_cost = tick() - c_start
     if not knots:
         return lin
     results = [fd(t, data) for t in knots] if pool is None else [f.result() for f in futures]

@@ -122,6 +122,8 @@ class TrackingCost:
     thread_safe = True
     """``prepare`` and ``value`` keep their scratch per call or per thread (the collision
     probe's data), so the iLQR may roll out and differentiate on worker threads."""
+    derivatives_thread_safe = True
+    """``derivatives`` too keeps its scratch per call or per thread."""
     non_negative = True
     """Every term is a weighted square with a weight >= 0 (``CostWeights`` refuses negative
     ones), so the iLQR may stop a line-search rollout once its cost exceeds the best total."""
@@ -157,7 +159,6 @@ class TrackingCost:
             pos = ref.qpos[:, p.qpos_adr : p.qpos_adr + 3]
             quat = ref.qpos[:, p.qpos_adr + 3 : p.qpos_adr + 7]
             self._ref_root.append((pos, quat))
-        self._jac = np.zeros((3, model.nv))
         self._nf = nf
         self._root_rot_dofs = [np.arange(p.qvel_adr + 3, p.qvel_adr + 6) for p in layout.persons]
         self._root_damping0 = [model.dof_damping[d].copy() for d in self._root_rot_dofs]
@@ -181,6 +182,7 @@ class TrackingCost:
         # body, −kp, the torque limit and ``_root_ref``'s parts (cleared with ``_ref_cache``).
         self._prep_cache: dict[tuple[int, int], list[tuple[int, int, float, float, np.ndarray, np.ndarray, np.ndarray | None]]] = {}
         self._scratch = threading.local()
+        self._jac_scratch = threading.local()
         # ``data.ctrl[acts] += x`` is ``data.ctrl += x`` when the controls are all of them, in order.
         self._acts_all = bool(np.array_equal(self._acts, np.arange(model.nu)))
         # Per person: the Jacobians (3, nv) of the root placement residuals (position, rotation).
@@ -231,7 +233,9 @@ class TrackingCost:
             if with_jac:
                 va = p.qvel_adr
                 jw: list[np.ndarray] = []
-                J = self._jac
+                J = getattr(self._jac_scratch, "J", None)
+                if J is None:  # per thread: derivatives may run on several
+                    J = self._jac_scratch.J = np.zeros((3, m.nv))
                 skews = _skews(local)
                 zero = self._zero_jac  # np.vstack copies: the rows may share one array
                 for s_idx, sid in enumerate(sites.tolist()):
@@ -256,7 +260,7 @@ class TrackingCost:
         if fc is None or self.w.w_skate <= 0:
             return np.zeros(0), (np.zeros((0, self.model.nv)) if with_jac else None)
         rs, js = [], []
-        jac = np.zeros((3, self.model.nv))  # not self._jac: rollouts may run on threads
+        jac = np.zeros((3, self.model.nv))  # per call: rollouts may run on threads
         J = jac[:2]
         qvel = data.qvel
         planted = fc[t].tolist()
