@@ -65,7 +65,9 @@ def test_com_outside_one_planted_foot_is_moved_over_it_and_the_foot_stays() -> N
     polys = support_polygons(m, feet, q, planted, 0.0)
     assert min(_outside_m(before[f], polys[f][0]) for f in range(F)) > 0.03
 
-    q1, offset = balance_reference(scene, q, planted, FPS, ReferenceConfig(balance="zmp"))
+    q1, offset = balance_reference(
+        scene, q, planted, FPS, ReferenceConfig(balance="zmp", balance_support="planted")
+    )
     after = centre_of_mass(m, root, q1)[:, 0, :2]
     polys1 = support_polygons(m, feet, q1, planted, 0.0)
     assert max(_outside_m(after[f], polys1[f][0]) for f in range(F)) < 0.005
@@ -122,6 +124,8 @@ def test_low_support_counts_an_unplanted_foot_on_the_floor() -> None:
     _, offset = balance_reference(
         scene, q, planted, FPS, ReferenceConfig(balance="zmp", balance_support="low")
     )
-    _, offset_planted = balance_reference(scene, q, planted, FPS, ReferenceConfig(balance="zmp"))
+    _, offset_planted = balance_reference(
+        scene, q, planted, FPS, ReferenceConfig(balance="zmp", balance_support="planted")
+    )
     assert np.abs(offset).max() < 0.005
     assert np.abs(offset_planted).max() > 0.05
