@@ -401,7 +401,7 @@ def _run(
             sub, kp, [rows[i] for i in g], separate=rcfg.separate, substeps=hcfg.substeps if rcfg.schedule else 0,
             flat_feet=rcfg.flat_feet, sole_lift_m=sole_lift, ff_friction=rcfg.feedforward_friction,
             ff_smooth_frames=rcfg.feedforward_smooth_frames, separation_clearance_m=rcfg.separation_clearance_m,
-            posture_weight=rcfg.ik_posture_weight, sole_m=sole[g],
+            posture_weight=rcfg.ik_posture_weight, sole_m=sole[g], balance=rcfg,
         )
 
         def prog(d: int, n: int, msg: str, _g: list[int] = g) -> None:

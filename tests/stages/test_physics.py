@@ -266,3 +266,20 @@ def test_standing_still_stays_still() -> None:
     rms_raw, slide_raw_mm = shake(PhysicsConfig(skeleton="keypoints", reference={"feedforward_smooth_frames": 0.0}))
     assert rms < 0.3 and slide_mm < 0.3
     assert rms_raw > 1.5 * rms and slide_raw_mm > 2.0 * slide_mm
+
+
+def test_reference_balance_reaches_the_stage() -> None:
+    """``reference.balance = "zmp"`` goes from the stage config to the reference: with the
+    upper body shaken fore and aft over still feet (the zero-moment point far outside the
+    feet), the balanced reference, and so the tracked motion, differs from the plain one."""
+    kp = _facing_pair(1.5, n_frames=8)
+    xyz = kp.xyz_m.copy()
+    upper = xyz[..., 2] > 0.5
+    shake = 0.04 * np.sin(np.arange(8) * 2 * np.pi / 6)[:, None, None]
+    xyz[..., 0] += np.where(upper, shake, 0.0)
+    kp = kp.replace(xyz_m=xyz)
+    cfg = {"mode": "single", "solver": {"window": 5, "commit": 3, "ilqr": {"max_iter": 1, "n_alpha": 2}}}
+    plain = run(PhysicsInputs(kp), PhysicsConfig(**cfg))
+    balanced = run(PhysicsInputs(kp), PhysicsConfig(**cfg, reference={"balance": "zmp"}))
+    moved = np.linalg.norm(balanced.keypoints.xyz_m - plain.keypoints.xyz_m, axis=-1).max()
+    assert moved > 1e-3
