@@ -63,17 +63,23 @@ def test_threaded_finite_differences_equal_the_serial_ones() -> None:
         np.testing.assert_allclose(getattr(threaded, name), getattr(serial, name), rtol=0.0, atol=0.0, err_msg=name)
 
 
-def test_batched_line_search_picks_the_same_step_as_the_sequential_one() -> None:
+def _line_search_inputs(mu: float) -> tuple:
+    """(model, data, cost, q0, v0, nominal, K, k, alphas, act) of a line search on the pushed
+    arm: a nominal rollout, its backward pass at regularisation ``mu`` and 6 step sizes."""
     model, cost, ctrl = _problem()
     q0, v0 = np.array([0.3, -0.8]), np.zeros(2)
     data = mujoco.MjData(model)
     nominal = rollout(model, data, cost, q0, v0, ctrl, substeps=SUBSTEPS)
     act = np.arange(model.nu)
     lin = linearise(model, data, cost, nominal, ILQRConfig(deriv_every=1), act, substeps=SUBSTEPS)
-    bp = backward_pass(lin, 1e-3)
+    bp = backward_pass(lin, mu)
     assert bp is not None
     K, k, _, _ = bp
-    alphas = np.logspace(0.0, -2.0, 6)
+    return model, data, cost, q0, v0, nominal, K, k, np.logspace(0.0, -2.0, 6), act
+
+
+def test_batched_line_search_picks_the_same_step_as_the_sequential_one() -> None:
+    model, data, cost, q0, v0, nominal, K, k, alphas, act = _line_search_inputs(1e-3)
     # Sequential reference: one closed-loop rollout per step size on the caller's data.
     seq = [rollout(model, data, cost, q0, v0, nominal.ctrl, 0, nominal, K, k, float(a), act, None, SUBSTEPS).total for a in alphas]
     with Workers(model, 2) as w:

@@ -26,7 +26,7 @@ from pipeline.backends.mujoco.ilqr import (  # noqa: E402
     rollout,
 )
 from pipeline.backends.mujoco.tracking import _skew, _skews  # noqa: E402
-from tests.backends.test_ilqr_parallel import SUBSTEPS, PushedTipCost, _problem  # noqa: E402
+from tests.backends.test_ilqr_parallel import SUBSTEPS, PushedTipCost, _line_search_inputs, _problem  # noqa: E402
 
 
 class NonNegativeCost(PushedTipCost):
@@ -35,24 +35,13 @@ class NonNegativeCost(PushedTipCost):
     non_negative = True
 
 
-def _line_search_inputs() -> tuple:
-    model, cost, ctrl = _problem()
-    q0, v0 = np.array([0.3, -0.8]), np.zeros(2)
-    data = mujoco.MjData(model)
-    nominal = rollout(model, data, cost, q0, v0, ctrl, substeps=SUBSTEPS)
-    act = np.arange(model.nu)
-    lin = linearise(model, data, cost, nominal, ILQRConfig(deriv_every=1), act, substeps=SUBSTEPS)
-    # A small regularisation: the full step overshoots, so some candidates are worse than others.
-    bp = backward_pass(lin, 1e-6)
-    assert bp is not None
-    K, k, _, _ = bp
-    alphas = np.logspace(0.0, -2.0, 6)
-    return model, data, cost, q0, v0, nominal, K, k, alphas, act
+SMALL_MU = 1e-6
+"""Regularisation of the line-search tests: the full step overshoots, so some candidates are worse than others."""
 
 
 @pytest.mark.parametrize("threads", [1, 2])
 def test_bounded_line_search_picks_the_same_step(threads: int) -> None:
-    model, data, cost, q0, v0, nominal, K, k, alphas, act = _line_search_inputs()
+    model, data, cost, q0, v0, nominal, K, k, alphas, act = _line_search_inputs(SMALL_MU)
     full = _candidates(model, data, cost, q0, v0, nominal, K, k, alphas, act, 0, None, SUBSTEPS, None)
     with Workers(model, threads) as w:
         cut = _candidates(model, data, cost, q0, v0, nominal, K, k, alphas, act, 0, None, SUBSTEPS, w, Bound(nominal.total))
