@@ -1,9 +1,9 @@
 """A balanced reference: the centre of mass moved so the zero-moment point stays over the feet.
 
-The fitted motion moves the pelvis without regard to the feet: on the demo bout each
-athlete's centre of mass (CoM) is outside the support of the planted feet in more than
-half of the frames, so the ground reactions the feed-forward puts on those feet cannot
-produce the motion and the residual root force steers it. ``balance_reference`` is a
+Where the fitted motion accelerates the centre of mass (CoM) beyond what the planted feet
+can support, the ground reactions the feed-forward puts on those feet cannot produce it and
+the residual root force steers it (measurements: docs/design/physics-effort.md).
+``balance_reference`` is a
 dynamics filter in the spirit of Yamane and Nakamura (2003), simplified to the CoM: per
 person it computes the CoM ``c(t)`` of the reference, the support polygon of the planted
 feet's sole points and the zero-moment point (ZMP) of a point mass,
