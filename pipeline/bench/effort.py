@@ -9,15 +9,17 @@ from pipeline.schema.results import PhysicsResult
 
 
 def effort_columns(mjcf: str, result: PhysicsResult) -> dict[str, float]:
-    """Torque-limit shares (%), floor force and residual (body weights) of one physics result;
-    ``mjcf`` is the scene the result was simulated in (the stage's ``scene.xml``)."""
+    """Torque-limit shares (%), floor force and residual (body weights) of one physics result,
+    over the samples where each athlete was seen (``PhysicsResult.observed_mask``); ``mjcf``
+    is the scene the result was simulated in (the stage's ``scene.xml``)."""
     from pipeline.backends.mujoco.forces import actuator_names, body_masses_kg, ground_reaction_forces
     from pipeline.evaluate.effort import force_balance_report, torque_limit_report
 
     pids = [int(p) for p in result.person_ids]
     mass = body_masses_kg(mjcf, pids)
-    out = torque_limit_report(result.joint_torque_nm, actuator_names(mjcf), pids, mass)
-    out.update(force_balance_report(ground_reaction_forces(mjcf, result), result.residual_root_force, mass))
+    seen = result.observed_mask()
+    out = torque_limit_report(result.joint_torque_nm, actuator_names(mjcf), pids, mass, seen)
+    out.update(force_balance_report(ground_reaction_forces(mjcf, result), result.residual_root_force, mass, seen))
     return out
 
 

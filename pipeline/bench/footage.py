@@ -164,7 +164,8 @@ def _physics_columns(store: Any) -> dict[str, Any]:
         out["residual_windows"] = f"{metrics['windows_with_residual']}/{metrics['windows']}"
     if store.has("physics", "result.npz"):
         res = store.load("physics", "result", PhysicsResult)
-        force = np.linalg.norm(res.residual_root_force[..., :3], axis=-1)  # (frames, persons), N
+        # (samples,) N, where each athlete was seen
+        force = np.linalg.norm(res.residual_root_force[..., :3], axis=-1)[res.observed_mask()]
         if force.size:
             out["residual_force_max_n"] = float(force.max())
             out["residual_force_mean_n"] = float(force.mean())

@@ -93,35 +93,63 @@ def joint_torque_ratios(
 
 
 def torque_ratio_per_frame(
-    torque_nm: np.ndarray, actuator_names: list[str] | tuple[str, ...], person_ids: list[int], mass_kg: np.ndarray
+    torque_nm: np.ndarray,
+    actuator_names: list[str] | tuple[str, ...],
+    person_ids: list[int],
+    mass_kg: np.ndarray,
+    observed: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(frames,) largest joint torque over its human limit, worst athlete and joint (>= 0;
-    0 without joint actuators). Arguments as in ``joint_torque_ratios``."""
-    ratios, _ = joint_torque_ratios(torque_nm, actuator_names, person_ids, mass_kg)
-    return ratios.max(axis=1, initial=0.0)
+    """(frames,) largest joint torque over its human limit, worst athlete seen in the frame
+    and joint (>= 0; 0 without joint actuators or athletes seen). Arguments as in
+    ``joint_torque_ratios``; ``observed`` (frames, persons) as in ``torque_limit_report``."""
+    ratios, keys = joint_torque_ratios(torque_nm, actuator_names, person_ids, mass_kg)
+    seen = _observed(observed, ratios.shape[0], len(person_ids))
+    cols = [list(person_ids).index(pid) for pid, _ in keys]
+    return np.where(seen[:, cols], ratios, 0.0).max(axis=1, initial=0.0)
+
+
+def _observed(observed: np.ndarray | None, n_frames: int, n_persons: int) -> np.ndarray:
+    """(frames, persons) bool sample mask: ``observed``, or all True when None; ``ValueError`` on another shape."""
+    if observed is None:
+        return np.ones((n_frames, n_persons), dtype=bool)
+    observed = np.asarray(observed, dtype=bool)
+    if observed.shape != (n_frames, n_persons):
+        raise ValueError(f"observed mask {observed.shape} needs (frames, persons) = {(n_frames, n_persons)}")
+    return observed
 
 
 def torque_limit_report(
-    torque_nm: np.ndarray, actuator_names: list[str], person_ids: list[int], mass_kg: np.ndarray
+    torque_nm: np.ndarray,
+    actuator_names: list[str],
+    person_ids: list[int],
+    mass_kg: np.ndarray,
+    observed: np.ndarray | None = None,
 ) -> dict[str, float]:
     """Share of (frame, athlete) samples whose joint torque exceeds the human limit, in %.
 
-    Arguments as in ``joint_torque_ratios``. Returns ``torque_over_pct_<group>`` per group,
-    ``torque_over_pct_any`` (frames where any joint of an athlete is over) and
-    ``torque_peak_ratio_max`` (largest torque / limit).
+    Arguments as in ``joint_torque_ratios``; ``observed`` (frames, persons) restricts the
+    samples to those where the athlete was seen (``PhysicsResult.observed_mask``; all when
+    None). Returns ``torque_over_pct_<group>`` per group, ``torque_over_pct_any`` (samples
+    where any joint of an athlete is over) and ``torque_peak_ratio_max`` (largest torque / limit).
     """
     ratios, keys = joint_torque_ratios(torque_nm, actuator_names, person_ids, mass_kg)
+    seen = _observed(observed, ratios.shape[0], len(person_ids))
     over = ratios > 1.0
     over_any = np.zeros((ratios.shape[0], len(person_ids)), dtype=bool)
     over_group: dict[str, list[np.ndarray]] = {g: [] for g in HUMAN_PEAK_TORQUE_NM_PER_KG}
+    peak = 0.0
     for c, (pid, joint) in enumerate(keys):
-        over_group[group_of_joint(joint)].append(over[:, c])
-        over_any[:, list(person_ids).index(pid)] |= over[:, c]
+        i = list(person_ids).index(pid)
+        over_group[group_of_joint(joint)].append(over[seen[:, i], c])
+        over_any[:, i] |= over[:, c]
+        peak = max(peak, float(ratios[seen[:, i], c].max(initial=0.0)))
     out = {
-        f"torque_over_pct_{g}": 100.0 * float(np.mean(np.concatenate(v))) for g, v in over_group.items() if v
+        f"torque_over_pct_{g}": 100.0 * float(np.mean(np.concatenate(v)))
+        for g, v in over_group.items()
+        if v and np.concatenate(v).size
     }
-    out["torque_over_pct_any"] = 100.0 * float(over_any.mean()) if over_any.size else 0.0
-    out["torque_peak_ratio_max"] = float(ratios.max(initial=0.0))
+    out["torque_over_pct_any"] = 100.0 * float(over_any[seen].mean()) if seen.any() else 0.0
+    out["torque_peak_ratio_max"] = peak
     return out
 
 
@@ -141,30 +169,40 @@ def residual_frac_bw(residual_wrench: np.ndarray, mass_kg: np.ndarray) -> np.nda
     return np.linalg.norm(residual_wrench[..., :3], axis=-1) / (mass_kg[None, :] * GRAVITY)
 
 
-def residual_per_frame(residual_wrench: np.ndarray, mass_kg: np.ndarray) -> np.ndarray:
-    """(frames,) residual root force of the worst athlete, in body weights (``residual_frac_bw``)."""
-    return residual_frac_bw(residual_wrench, mass_kg).max(axis=1, initial=0.0)
+def residual_per_frame(
+    residual_wrench: np.ndarray, mass_kg: np.ndarray, observed: np.ndarray | None = None
+) -> np.ndarray:
+    """(frames,) residual root force of the worst athlete seen in the frame (``observed``,
+    (frames, persons); all when None), in body weights (``residual_frac_bw``; 0 when none is seen)."""
+    r = residual_frac_bw(residual_wrench, mass_kg)
+    return np.where(_observed(observed, *r.shape), r, 0.0).max(axis=1, initial=0.0)
 
 
 def force_balance_report(
-    grf_n: np.ndarray, residual_wrench: np.ndarray, mass_kg: np.ndarray
+    grf_n: np.ndarray, residual_wrench: np.ndarray, mass_kg: np.ndarray, observed: np.ndarray | None = None
 ) -> dict[str, float]:
     """Who carries the athletes: the floor or the residual, in body weights (BW).
 
     ``grf_n``: (frames, persons, 3) floor force on each athlete (N, world z-up);
     ``residual_wrench``: (frames, persons, 6) residual root force (N) and torque;
-    ``mass_kg``: (persons,). A humanoid standing on its own has ``grf_z_mean_frac_bw`` near
-    1 over a bout and residual near 0.
+    ``mass_kg``: (persons,); ``observed``: (frames, persons) the samples to count (all when
+    None). A humanoid standing on its own has ``grf_z_mean_frac_bw`` near 1 over a bout and
+    residual near 0. Every value is 0 without a sample.
     """
-    bw = np.asarray(mass_kg, dtype=float)[None, :] * GRAVITY
-    res = residual_wrench[..., :3]
     res_bw = residual_frac_bw(residual_wrench, mass_kg)
+    seen = _observed(observed, res_bw.shape[0], res_bw.shape[1])
+    if not seen.any():
+        keys = ("grf_z_mean", "grf_z_max", "residual_z_mean", "residual_xy_mean", "residual_mean", "residual_max")
+        return {f"{k}_frac_bw": 0.0 for k in keys} | {"grf_airborne_pct": 0.0}
+    bw = np.broadcast_to(np.asarray(mass_kg, dtype=float)[None, :] * GRAVITY, seen.shape)[seen]
+    grf_z = grf_n[..., 2][seen] / bw
+    res = residual_wrench[..., :3][seen]
     return {
-        "grf_z_mean_frac_bw": float(np.mean(grf_n[..., 2] / bw)),
-        "grf_z_max_frac_bw": float(np.max(grf_n[..., 2] / bw, initial=0.0)),
-        "grf_airborne_pct": 100.0 * float(np.mean(grf_n[..., 2] < 0.05 * bw)),
-        "residual_z_mean_frac_bw": float(np.mean(res[..., 2] / bw)),
-        "residual_xy_mean_frac_bw": float(np.mean(np.linalg.norm(res[..., :2], axis=-1) / bw)),
-        "residual_mean_frac_bw": float(np.mean(res_bw)),
-        "residual_max_frac_bw": float(np.max(res_bw, initial=0.0)),
+        "grf_z_mean_frac_bw": float(np.mean(grf_z)),
+        "grf_z_max_frac_bw": float(np.max(grf_z)),
+        "grf_airborne_pct": 100.0 * float(np.mean(grf_z < 0.05)),
+        "residual_z_mean_frac_bw": float(np.mean(res[:, 2] / bw)),
+        "residual_xy_mean_frac_bw": float(np.mean(np.linalg.norm(res[:, :2], axis=-1) / bw)),
+        "residual_mean_frac_bw": float(np.mean(res_bw[seen])),
+        "residual_max_frac_bw": float(np.max(res_bw[seen])),
     }

@@ -85,6 +85,10 @@ class PhysicsResult:
             missed the joints by more than ``ResidualConfig.fallback_tol_m`` on average;
             residual modes ``off`` and ``fallback``, all False in ``always``); (0, 0) in
             a result written before it was recorded.
+        observed: (frames, persons) bool, True where the person had valid input joints
+            (seen by the cameras); the humanoid is still simulated elsewhere, but those
+            samples are not the athlete's motion. (0, 0) in a result written before it
+            was recorded (read as observed everywhere).
     """
 
     person_ids: np.ndarray
@@ -102,12 +106,15 @@ class PhysicsResult:
     contact_depth_m: np.ndarray
     body_names: tuple[str, ...]
     untrackable: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
+    observed: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
 
     def __post_init__(self) -> None:
         f = self.frame_indices.shape[0] if isinstance(self.frame_indices, np.ndarray) else -1
         p = self.person_ids.shape[0] if isinstance(self.person_ids, np.ndarray) else -1
-        if not (isinstance(self.untrackable, np.ndarray) and self.untrackable.shape == (0, 0)):
-            check_array("PhysicsResult.untrackable", self.untrackable, (f, p), "b")
+        for name in ("untrackable", "observed"):
+            value = getattr(self, name)
+            if not (isinstance(value, np.ndarray) and value.shape == (0, 0)):
+                check_array(f"PhysicsResult.{name}", value, (f, p), "b")
         check_array("PhysicsResult.frame_indices", self.frame_indices, (f,), "iu")
         check_array("PhysicsResult.person_ids", self.person_ids, (p,), "iu")
         check_array("PhysicsResult.qpos", self.qpos, (f, None), "f", finite=True)
@@ -123,3 +130,9 @@ class PhysicsResult:
         check_array("PhysicsResult.contact_depth_m", self.contact_depth_m, (c,), "f", finite=True)
         if self.actuation not in ("pd", "torque"):
             raise ValueError(f"PhysicsResult.actuation must be 'pd' or 'torque', got {self.actuation!r}")
+
+    def observed_mask(self) -> np.ndarray:
+        """(frames, persons) bool: ``observed``, or all True for a result written before it was recorded."""
+        if self.observed.shape == (0, 0):
+            return np.ones((self.frame_indices.shape[0], self.person_ids.shape[0]), dtype=bool)
+        return self.observed

@@ -226,14 +226,16 @@ def physics_effort_per_frame(ph: PhysicsEffortInputs | None, frames: np.ndarray)
     row = np.searchsorted(frames, r.frame_indices)
     ok = (row < F) & (frames[np.minimum(row, F - 1)] == r.frame_indices)
     pids = [int(p) for p in r.person_ids]
-    res[row[ok]] = residual_per_frame(r.residual_root_force, ph.mass_kg)[ok]
-    tau[row[ok]] = torque_ratio_per_frame(r.joint_torque_nm, ph.actuator_names, pids, ph.mass_kg)[ok]
+    seen = r.observed_mask()
+    res[row[ok]] = residual_per_frame(r.residual_root_force, ph.mass_kg, seen)[ok]
+    tau[row[ok]] = torque_ratio_per_frame(r.joint_torque_nm, ph.actuator_names, pids, ph.mass_kg, seen)[ok]
     return res, tau
 
 
 def untrackable_per_frame(ph: PhysicsEffortInputs | None, frames: np.ndarray) -> np.ndarray:
-    """(frames,) bool: some athlete's physics window could not be tracked without a residual
-    root force (``PhysicsResult.untrackable``) at video frames ``frames`` (sorted); False
+    """(frames,) bool: some athlete seen in the frame had a physics window that could not be
+    tracked without a residual root force (``PhysicsResult.untrackable``) at video frames
+    ``frames`` (sorted); False
     where physics has no frame or its result did not record it."""
     F = frames.shape[0]
     out = np.zeros(F, dtype=bool)
@@ -242,7 +244,7 @@ def untrackable_per_frame(ph: PhysicsEffortInputs | None, frames: np.ndarray) ->
     r = ph.result
     row = np.searchsorted(frames, r.frame_indices)
     ok = (row < F) & (frames[np.minimum(row, F - 1)] == r.frame_indices)
-    out[row[ok]] = np.asarray(r.untrackable.any(axis=1))[ok]
+    out[row[ok]] = np.asarray((r.untrackable & r.observed_mask()).any(axis=1))[ok]
     return out
 
 

@@ -446,6 +446,9 @@ def _run(
             secs[k] = secs.get(k, 0.0) + v
     contacts, sites = mp.contacts_and_sites(scene, qpos, qvel)
     lay = scene.layout
+    # A person absent from the input (no valid joint: not yet in view, or gone) is still
+    # simulated, untracked; those samples are neither output nor counted in the stats.
+    observed = np.asarray(kp.valid[:, rows].any(axis=-1), dtype=bool)
     result = PhysicsResult(
         person_ids=np.asarray(pids, dtype=np.int64),
         frame_indices=kp.frame_indices.astype(np.int64),
@@ -462,14 +465,12 @@ def _run(
         contact_depth_m=contacts.depth_m,
         body_names=contacts.body_names,
         untrackable=untrackable,
+        observed=observed,
     )
     names = scene.site_names
     out_kp = Keypoints3D.empty(names, np.asarray(pids), kp.frame_indices, kp.fps, "physics")
-    out_kp = out_kp.replace(
-        xyz_m=sites,
-        valid=np.ones(sites.shape[:3], dtype=bool),
-        confidence=np.ones(sites.shape[:3]),
-    )
+    seen = np.broadcast_to(observed[..., None], sites.shape[:3])
+    out_kp = out_kp.replace(xyz_m=sites, valid=seen.copy(), confidence=seen.astype(float))
     first_input_change = -1
     if inputs.previous is not None and inputs.previous.checkpoints.input_digest.shape == in_digest.shape:
         first_input_change = first_changed(inputs.previous.checkpoints.input_digest, in_digest)
@@ -480,6 +481,7 @@ def _run(
     motion_s = max(F - 1, 1) / kp.fps
     body_pen = mp.deepest_inter_person_mm(contacts, F)
     weight_n = np.array([p.mass_kg * 9.81 for p in lay.persons])
+    resid_bw = np.linalg.norm(resid[..., :3], axis=-1) / weight_n[None]
     n_bad, bad_frames = int(agg["untrackable_windows"]), int(untrackable.any(axis=1).sum())
     if n_bad:
         log.warning(untrackable_message(cfg.residual.mode, n_bad, int(agg["windows"]), untrackable_starts, kp.frame_indices))
@@ -504,8 +506,9 @@ def _run(
         "iterations": int(agg["iterations"]),
         "resets": int(agg["resets"]),
         "kinematic_frames": int(agg["kinematic_frames"]),
-        "residual_force_mean_frac_bw": float(np.mean(np.linalg.norm(resid[..., :3], axis=-1) / weight_n[None])),
-        "residual_force_max_frac_bw": float(np.max(np.linalg.norm(resid[..., :3], axis=-1) / weight_n[None], initial=0.0)),
+        "residual_force_mean_frac_bw": float(np.mean(resid_bw[observed])) if observed.any() else 0.0,
+        "residual_force_max_frac_bw": float(np.max(resid_bw[observed], initial=0.0)),
+        "observed_pct": 100.0 * float(observed.mean()) if observed.size else 0.0,
         "body_penetration_max_mm": float(body_pen.max(initial=0.0)),
         "body_penetration_mean_mm": float(body_pen.mean()) if body_pen.size else 0.0,
         "incremental": f"reused frames 0-{reused_frames - 1}" if reused_frames else f"full run: {why}",

@@ -1,3 +1,4 @@
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -64,6 +65,11 @@ def test_physics_geoms_follow_qpos(tmp_path: Path) -> None:
     v1, _ = pg.person_mesh(1, 0)
     np.testing.assert_allclose(v1.mean(axis=0), [1.0, 0.0, 1.0], atol=0.02)  # the sphere of person 1
     assert pg.person_mesh(2, 0) is None and pg.person_mesh(0, 99) is None
+    # A person not seen in a frame is simulated but not drawn there.
+    seen = np.ones((d.physics.frame_indices.shape[0], 2), dtype=bool)
+    seen[3, 1] = False
+    pg2 = load_physics_geoms(d.physics_xml, dataclasses.replace(d.physics, observed=seen))
+    assert pg2.person_mesh(1, 3) is None and pg2.person_mesh(1, 2) is not None and pg2.person_mesh(0, 3) is not None
 
 
 def test_physics_geoms_bad_xml_falls_back(tmp_path: Path) -> None:

@@ -45,7 +45,8 @@ def _geom_template(geom: GeomShape) -> tuple[np.ndarray, np.ndarray] | None:
 class PhysicsGeoms:
     """Per-person merged geom meshes of the physics result.
 
-    ``person_mesh(person_id, row)`` -> (verts (V, 3) float32 world, faces (F, 3)) or None.
+    ``person_mesh(person_id, row)`` -> (verts (V, 3) float32 world, faces (F, 3)), or None
+    when the person has no geoms or was not seen in that frame (``PhysicsResult.observed``).
     Raises ``ValueError`` when the MJCF does not compile or its ``nq`` does not match ``qpos``.
     """
 
@@ -57,6 +58,8 @@ class PhysicsGeoms:
         if self.scene.nq != result.qpos.shape[1]:
             raise ValueError(f"{xml_path}: model nq={self.scene.nq} but physics/result.npz qpos has {result.qpos.shape[1]}")
         self.result = result
+        self._observed = result.observed_mask()
+        self._column = {int(p): i for i, p in enumerate(result.person_ids.tolist())}
         self._geoms: dict[int, list[tuple[int, np.ndarray]]] = {}  # pid -> [(geom id, local verts)]
         self.faces: dict[int, np.ndarray] = {}
         for pid in result.person_ids.tolist():
@@ -85,6 +88,8 @@ class PhysicsGeoms:
         geoms = self._geoms.get(int(person_id))
         if geoms is None or not 0 <= row < self.result.qpos.shape[0]:
             return None
+        if not self._observed[row, self._column[int(person_id)]]:
+            return None  # simulated but not seen in this frame: not the athlete's motion
         xpos, xmat = self.scene.geom_poses(self.result.qpos[row])
         verts = np.concatenate([v @ xmat[g].T + xpos[g] for g, v in geoms])
         return verts.astype(np.float32), self.faces[int(person_id)]
