@@ -54,8 +54,9 @@ class PunchConfig:
     """The strike is the first frame after the fastest one where the fist's speed (relative
     to the neck) drops below this fraction of that fastest speed, in (0, 1)."""
     clinch_margin_s: float = 0.3
-    """Excursions whose strike lies in a clinch, or within this of one, are the hands
-    taking or leaving the grip, not punches (s, >= 0)."""
+    """Excursions whose strike lies in a grip (a clinch, or close bodies with a hand of each at
+    the other's torso), or within this of one, are the hands taking or leaving the grip, not
+    punches (s, >= 0)."""
     edge_frac: float = 0.25
     """A punch starts / ends where the excursion falls below this fraction of its peak, in (0, 1)."""
     max_duration_s: float = 1.0
@@ -68,6 +69,10 @@ class PunchConfig:
     """Where the peak glove speed is measured. ``raw``: on the unfiltered triangulation when
     the stage gets it (``punches.raw_peak_speed``: filters and the fit's smoothness prior
     flatten a punch's peak); ``analysed``: the analysed keypoints' largest frame-to-frame speed."""
+    speed_along_path: bool = True
+    """With ``speed_source="raw"``: the raw derivative is taken along the analysed wrist's
+    direction of motion (``punches.raw_peak_speed``), which drops the raw noise across the
+    path; False takes its norm (five-point with 3+ views, seven-point with 2)."""
     raw_speed_max_ratio: float = 2.0
     """The raw measurement is kept between the analysed speed and this multiple of it (>= 1),
     so that a raw triangulation outlier cannot make a punch out of a reach."""
@@ -204,11 +209,21 @@ class OutcomeConfig:
     """A missed punch's target region is the nearest one within this gap, else "none" (m, >= 0)."""
     window_frames: int = 2
     """Frames either side of the strike where contact is looked for (>= 0)."""
+    filtered_reach: bool = True
+    """Where the thrower's raw wrist was seen by fewer than ``filtered_reach_views`` views, take
+    each gap as the smaller of the analysed glove's and the glove placed by the filtered
+    triangulation (when the stage gets it): a two-view fit shortens punches, so its gaps err
+    on the large side, and a landed punch would read as missed."""
+    filtered_reach_views: float = 3.0
+    """Median number of views of the raw wrist over the punch below which ``filtered_reach``
+    applies (> 0; 3 = when the wrist was mostly triangulated from two views)."""
     use_contacts: bool = True
     """Use the physics stage's recorded contacts (glove or forearm on the opponent's head,
     trunk or arms) when analysing the physics result; they decide where they exist."""
 
     def __post_init__(self) -> None:
+        if not self.filtered_reach_views > 0:
+            raise ValueError(f"OutcomeConfig.filtered_reach_views must be > 0, got {self.filtered_reach_views}")
         if self.contact_tol_m < 0 or self.target_radius_m < 0 or self.window_frames < 0:
             raise ValueError(
                 f"OutcomeConfig: contact_tol_m, target_radius_m and window_frames must be >= 0, got "
@@ -229,8 +244,11 @@ class DefenceConfig:
     """The head's position this long before the strike is the reference (s, > 0)."""
     clinch_torso_m: float = 0.6
     """A clinch frame has the torso centres (mean of shoulders and hips) closer than this (m, > 0)."""
-    clinch_wrap_m: float = 0.42
-    """... and a wrist of each athlete within this of the other's torso centre (m, > 0)."""
+    clinch_wrap_m: float = 0.5
+    """... and a wrist of each athlete within this of the other's torso centre (m, > 0) ..."""
+    clinch_reach_m: float = 0.06
+    """... that reaches, along the line between the torso centres, at least as far as the other's
+    centre less this (m, >= 0): the arms go around him, a guard between close bodies does not."""
     clinch_min_s: float = 0.3
     """Clinches shorter than this are dropped; gaps shorter than this are bridged (s, > 0)."""
     parry_min_speed_mps: float = 1.0
@@ -247,6 +265,8 @@ class DefenceConfig:
                   clinch_wrap_m=self.clinch_wrap_m, clinch_min_s=self.clinch_min_s,
                   parry_min_speed_mps=self.parry_min_speed_mps, parry_min_deflection_m=self.parry_min_deflection_m,
                   deflect_window_s=self.deflect_window_s)  # fmt: skip
+        if not self.clinch_reach_m >= 0:
+            raise ValueError(f"DefenceConfig.clinch_reach_m must be >= 0, got {self.clinch_reach_m}")
 
 
 @dataclass(frozen=True)

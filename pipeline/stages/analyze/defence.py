@@ -8,9 +8,11 @@ punch's line of at least ``slip_min_m`` is a slip, a drop of at least ``duck_min
 (whichever is larger relative to its threshold), at its largest up to 0.1 s after the strike.
 
 **Clinches.** Frames where the torso centres (mean of shoulders and hips) are closer than
-``clinch_torso_m`` and each athlete has a wrist within ``clinch_wrap_m`` of the other's
-torso centre; runs shorter than ``clinch_min_s`` are bridged when they are gaps and dropped
-when they are clinches.
+``clinch_torso_m`` and each athlete holds the other: a wrist within ``clinch_wrap_m`` of the
+other's torso centre that reaches, along the line between the torso centres, at least as far
+as that centre less ``clinch_reach_m`` (the arms go around him; a guard held up between two
+close bodies stays in front of him); runs shorter than ``clinch_min_s`` are bridged when they
+are gaps and dropped when they are clinches.
 """
 
 from __future__ import annotations
@@ -92,19 +94,27 @@ def clean_runs(mask: np.ndarray, min_len: int) -> np.ndarray:
     return out
 
 
-def clinch_frames(a: Body, b: Body, cfg: DefenceConfig) -> np.ndarray:
-    """(frames,) bool: the two athletes clinch (see the module docstring)."""
+def clinch_frames(a: Body, b: Body, cfg: DefenceConfig, arms_around: bool = True) -> np.ndarray:
+    """(frames,) bool: the two athletes clinch (see the module docstring). ``arms_around=False``
+    drops the reach condition: the bodies are close and each has a hand at the other's torso
+    (taking, holding or leaving a grip)."""
     names = ("left_shoulder", "right_shoulder", "left_hip", "right_hip")
     pts = [[body.point(n) for n in names] for body in (a, b)]
     centre = [np.mean([p for p, _ in ps], axis=0) for ps in pts]
     ok = np.logical_and.reduce([k for ps in pts for _, k in ps])
-    close = np.linalg.norm(centre[0] - centre[1], axis=1) < cfg.clinch_torso_m
+    gap = np.linalg.norm(centre[1] - centre[0], axis=1)
+    close = gap < cfg.clinch_torso_m
     wraps = []
-    for me, other in ((a, 1), (b, 0)):
+    for me, mine, other in ((a, 0, 1), (b, 1, 0)):
+        towards = (centre[other] - centre[mine]) / np.maximum(gap, 1e-9)[:, None]
         near = np.zeros(a.n_frames, dtype=bool)
         for hand in ("left", "right"):
             w, wok = me.point(f"{hand}_wrist")
-            near |= wok & (np.linalg.norm(w - centre[other], axis=1) < cfg.clinch_wrap_m)
+            reach = np.sum((w - centre[mine]) * towards, axis=1)
+            holds = np.linalg.norm(w - centre[other], axis=1) < cfg.clinch_wrap_m
+            if arms_around:
+                holds &= reach >= gap - cfg.clinch_reach_m
+            near |= wok & holds
         wraps.append(near)
     raw = ok & close & wraps[0] & wraps[1]
     return clean_runs(raw, max(1, int(round(cfg.clinch_min_s * a.fps))))

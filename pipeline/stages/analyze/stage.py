@@ -150,6 +150,22 @@ def _view_signals(inp: AnalyzeInputs, kp: Keypoints3D, me: Body, cfg: AnalyzeCon
     }
 
 
+def _with_filtered_reach(gaps: dict[str, np.ndarray], me: Body, opp: Body, motion: Body, hand: str, rows: np.ndarray,
+                         views: np.ndarray, cfg: AnalyzeConfig) -> dict[str, np.ndarray]:  # fmt: skip
+    """``gaps`` (region -> (rows,) gaps of the analysed glove, m), or, when the raw wrist was seen by
+    fewer than ``OutcomeConfig.filtered_reach_views`` views (median over the punch), the smaller of
+    them and the gaps of the glove placed by the filtered triangulation's elbow and wrist (``motion``,
+    where estimated): a fit from two views shortens the punch, so its gaps err on the large side."""
+    if views.size == 0 or float(np.median(views)) >= cfg.outcome.filtered_reach_views:
+        return gaps
+    cols = [me.names.index(f"{hand}_{j}") for j in ("elbow", "wrist")]
+    xyz = me.xyz[rows].copy()
+    have = motion.ok[rows][:, cols].all(axis=1)
+    xyz[:, cols] = np.where(have[:, None, None], motion.xyz[rows][:, cols], xyz[:, cols])
+    other = glove_gaps(xyz, hand, opp.xyz[rows], me.names)
+    return {k: np.minimum(v, other[k]) for k, v in gaps.items()}
+
+
 def _punches_of(me: Body, opp: Body | None, R: np.ndarray, r_ok: np.ndarray, stance_codes: np.ndarray,
                 cfg: AnalyzeConfig, physics: PhysicsResult | None, frames: np.ndarray, clinch: np.ndarray,
                 raw: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], motion: Body | None,
@@ -174,7 +190,8 @@ def _punches_of(me: Body, opp: Body | None, R: np.ndarray, r_ok: np.ndarray, sta
         for d in found:
             speed = d.peak_speed_mps
             if cfg.punch.speed_source == "raw":
-                measured = raw_peak_speed(*raw[hand], d.start, d.peak, me.fps) if hand in raw else None
+                path = h.wrist if cfg.punch.speed_along_path else None
+                measured = raw_peak_speed(*raw[hand], d.start, d.peak, me.fps, path) if hand in raw else None
                 if measured is None and hand in views and cfg.views.lift_speed:
                     measured = evidence2d.view_peak_speed(views[hand], d.start, d.peak)
                 if measured is not None:
@@ -190,6 +207,8 @@ def _punches_of(me: Body, opp: Body | None, R: np.ndarray, r_ok: np.ndarray, sta
                 ok = me.ok[rows][:, need].all(axis=1) & opp.ok[rows][:, need].all(axis=1)
                 if ok.any():
                     gaps = glove_gaps(me.xyz[rows[ok]], hand, opp.xyz[rows[ok]], me.names)
+                    if motion is not None and cfg.outcome.filtered_reach and hand in raw:
+                        gaps = _with_filtered_reach(gaps, me, opp, motion, hand, rows[ok], raw[hand][2][d.start : d.end + 1], cfg)
                     target, result = outcome.from_gaps({k: float(v.min()) for k, v in gaps.items()}, cfg.outcome)
                 if physics is not None and cfg.outcome.use_contacts:
                     hit = outcome.from_contacts(outcome.contact_regions(physics, me.person_id, hand, opp.person_id, frames[rows]))
@@ -228,9 +247,13 @@ def run(inp: AnalyzeInputs, cfg: AnalyzeConfig = AnalyzeConfig()) -> AnalyzeOutp
     position_ok = np.zeros((n_f, n_p), dtype=bool)
     punches: list[_Punch] = []
     clinch = np.zeros(n_f, dtype=bool)
+    grip = clinch
     dist, dist_ok = np.zeros(n_f), np.zeros(n_f, dtype=bool)
     if len(bs) >= 2:
         clinch = defence.clinch_frames(bs[0], bs[1], cfg.defence)
+        # Punches are not looked for where the hands take, hold or leave a grip: the clinch
+        # test without its arms-around condition, which the clinch itself needs.
+        grip = clinch | defence.clinch_frames(bs[0], bs[1], cfg.defence, arms_around=False)
         dist, dist_ok = ring.distance(bs[0], bs[1])
     for i, me in enumerate(bs):
         R, r_ok = facing_frames(me, opps[i])
@@ -242,7 +265,7 @@ def run(inp: AnalyzeInputs, cfg: AnalyzeConfig = AnalyzeConfig()) -> AnalyzeOutp
         raw = _raw_wrists(inp.raw, kp, me.person_id)
         motion = _motion_body(inp.filtered, kp, me.person_id, cfg.punch.max_gap_frames)
         views = _view_signals(inp, kp, me, cfg)
-        punches += _punches_of(me, opps[i], R, r_ok, stance[:, i], cfg, inp.physics, frames, clinch, raw, motion, views)
+        punches += _punches_of(me, opps[i], R, r_ok, stance[:, i], cfg, inp.physics, frames, grip, raw, motion, views)
     punches.sort(key=lambda p: (p.peak, p.person))
     by_id = {b.person_id: b for b in bs}
     evades: list[tuple[int, defence.Evade, int]] = []
