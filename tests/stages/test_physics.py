@@ -228,8 +228,8 @@ def test_a_window_that_diverges_even_from_the_reference_keeps_the_reference(monk
 
     real = mp._first_stable
 
-    def diverge_at_frame_3(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps):  # type: ignore[no-untyped-def]
-        return None if t0 == 3 else real(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps)
+    def diverge_at_frame_3(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps, blocks=None):  # type: ignore[no-untyped-def]
+        return None if t0 == 3 else real(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps, blocks)
 
     monkeypatch.setattr(mp, "_first_stable", diverge_at_frame_3)
     kp = _facing_pair(0.4)

@@ -86,10 +86,10 @@ def test_fallback_flags_exactly_the_windows_it_redid(caplog: pytest.LogCaptureFi
     real = mp._first_stable
     with_residual: list[int] = []
 
-    def spy(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps):  # type: ignore[no-untyped-def]
+    def spy(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps, blocks=None):  # type: ignore[no-untyped-def]
         if int(m.opt.disableactuator) & (1 << mp.RESIDUAL_GROUP) == 0:  # the residual servos act
             with_residual.append(t0)
-        return real(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps)
+        return real(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps, blocks)
 
     monkeypatch.setattr(mp, "_first_stable", spy)
     out, said = _run(_teleporting(), "fallback", caplog)

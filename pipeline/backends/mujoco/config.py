@@ -217,6 +217,10 @@ class ILQRConfig:
     """Finite-difference step of ``mjd_transitionFD``, > 0."""
     fd_centered: bool = False
     """Centred finite differences (2× cost)."""
+    fd_split_persons: bool = True
+    """Forward differences of persons who do not touch share their steps (one DOF of each
+    nudged at once, ``fd_split``): the same Jacobians from 1/persons of the steps; off runs
+    ``mjd_transitionFD`` on the whole scene."""
     deriv_every: int = 8
     """Dynamics Jacobians by finite differences every k frames, interpolated in between, >= 1."""
     jacobian_reuse: int = 2

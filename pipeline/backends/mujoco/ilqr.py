@@ -39,6 +39,7 @@ import mujoco
 import numpy as np
 
 from pipeline.backends.mujoco.config import ILQRConfig
+from pipeline.backends.mujoco.fd_split import PersonBlocks, transition_fd
 
 log = logging.getLogger(__name__)
 
@@ -290,24 +291,35 @@ def knot_jacobians(
     t: int,
     cfg: ILQRConfig,
     substeps: int = 1,
+    blocks: PersonBlocks | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(A (nx, nx), B (nx, nu)) of one control step (``substeps`` MuJoCo steps with the
     control held, the cost's ``prepare`` before each) at state (qpos, qvel, warm start) and
-    control u, by ``mujoco.mjd_transitionFD`` on ``data`` (overwritten), chained over the
-    substeps: x' = f(f(x, u), u) (the cost's time-dependent offsets do not depend on u)."""
+    control u, by finite differences on ``data`` (overwritten), chained over the substeps:
+    x' = f(f(x, u), u) (the cost's time-dependent offsets do not depend on u).
+
+    Each substep's Jacobians come from ``fd_split.transition_fd`` (one DOF of every person
+    nudged per step; the same numbers) when ``blocks`` is given, ``cfg.fd_split_persons`` is on,
+    the differences are forward and the persons do not touch; else ``mujoco.mjd_transitionFD``."""
     nx = 2 * model.nv
     Ab = np.zeros((nx, nx))
     Bb = np.zeros((nx, model.nu))
+    split = blocks if (cfg.fd_split_persons and not cfg.fd_centered) else None
+
+    def jacobians() -> None:
+        if split is None or not transition_fd(model, data, cfg.fd_eps, split, Ab, Bb):
+            mujoco.mjd_transitionFD(model, data, cfg.fd_eps, cfg.fd_centered, Ab, Bb, None, None)
+
     _set_state(model, data, qpos, qvel, warm)
     data.ctrl[:] = u
     cost.prepare(model, data, t, 0)
-    mujoco.mjd_transitionFD(model, data, cfg.fd_eps, cfg.fd_centered, Ab, Bb, None, None)
+    jacobians()
     A_t, B_t = Ab.copy(), Bb.copy()
     for sub in range(1, substeps):
         mujoco.mj_step(model, data)
         data.ctrl[:] = u
         cost.prepare(model, data, t, sub)
-        mujoco.mjd_transitionFD(model, data, cfg.fd_eps, cfg.fd_centered, Ab, Bb, None, None)
+        jacobians()
         A_t, B_t = Ab @ A_t, Ab @ B_t + Bb
     return A_t, B_t
 
@@ -323,6 +335,7 @@ def linearise(
     dynamics: Linearisation | None = None,
     substeps: int = 1,
     workers: Workers | None = None,
+    blocks: PersonBlocks | None = None,
 ) -> Linearisation:
     """Dynamics Jacobians and cost derivatives along ``traj`` (see module docstring);
     ``substeps`` MuJoCo steps per control step, chained.
@@ -332,7 +345,7 @@ def linearise(
     finite differences run on its threads, each on its own data, while this thread
     computes the cost derivatives on ``data``; without knots, the cost derivatives of a
     cost marked ``derivatives_thread_safe`` run on its threads (the same numbers either
-    way)."""
+    way). ``blocks``: the persons of the model, for ``knot_jacobians``."""
     H = traj.ctrl.shape[0]
     nv = model.nv
     nx, na = 2 * nv, active.size
@@ -351,7 +364,7 @@ def linearise(
     def fd(t: int, d: mujoco.MjData | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         c0 = tick()
         dd = d if d is not None else workers.data()  # type: ignore[union-attr]
-        A_t, B_t = knot_jacobians(model, dd, cost, traj.qpos[t], traj.qvel[t], traj.warmstart[t], traj.ctrl[t], t0 + t, cfg, substeps)
+        A_t, B_t = knot_jacobians(model, dd, cost, traj.qpos[t], traj.qvel[t], traj.warmstart[t], traj.ctrl[t], t0 + t, cfg, substeps, blocks)
         return A_t, B_t[:, active], tick() - c0
 
     def cost_at(t: int, d: mujoco.MjData | None = None) -> None:
@@ -504,6 +517,7 @@ def optimise(
     warm0: np.ndarray | None = None,
     substeps: int = 1,
     threads: int | None = None,
+    blocks: PersonBlocks | None = None,
 ) -> ILQRResult:
     """Minimise Σ_t l(x_t, u_t, t0+t) + l_T(x_H) over the ``active`` controls, each control
     held for ``substeps`` MuJoCo steps (the model's timestep is the control period / substeps).
@@ -513,7 +527,8 @@ def optimise(
 
     ``threads``: worker threads of the finite differences and the line search (None:
     ``cfg.threads`` if above 0, else ``default_threads()`` for a cost marked ``thread_safe``
-    and 1 for any other); the result does not depend on it.
+    and 1 for any other); the result does not depend on it. ``blocks``: the model's persons,
+    whose finite differences can share steps (``knot_jacobians``).
     """
     if threads is not None:
         n_threads = threads
@@ -537,7 +552,7 @@ def optimise(
         while it < cfg.max_iter:
             it += 1
             reuse = lin if (it - 1) % cfg.jacobian_reuse else None
-            lin = linearise(model, data, cost, nominal, cfg, act, t0=t0, dynamics=reuse, substeps=substeps, workers=workers)
+            lin = linearise(model, data, cost, nominal, cfg, act, t0=t0, dynamics=reuse, substeps=substeps, workers=workers, blocks=blocks)
             secs["derivatives_fd"] += lin.seconds_fd
             secs["derivatives_cost"] += lin.seconds_cost
             improved = False

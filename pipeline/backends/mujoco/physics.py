@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 
 from pipeline.backends.mujoco.config import ILQRConfig, ResidualConfig, SolverConfig
+from pipeline.backends.mujoco.fd_split import PersonBlocks
 from pipeline.backends.mujoco.ilqr import ILQRResult, UnstableRollout, optimise
 from pipeline.backends.mujoco.reference import (
     Scene,
@@ -157,6 +158,20 @@ def untrackable_frames(records: list[WindowRecord] | tuple[WindowRecord, ...], n
     return out
 
 
+def person_blocks(scene: Scene) -> PersonBlocks | None:
+    """The scene's persons as ``fd_split.PersonBlocks`` (their DOFs, actuators and geoms), or
+    None for one person or when they do not cover the model (the plain finite differences)."""
+    lay, m = scene.layout, scene.model
+    if len(lay.persons) < 2:
+        return None
+    blocks = PersonBlocks(
+        dofs=tuple(np.arange(p.qvel_adr, p.qvel_adr + p.nv, dtype=np.int64) for p in lay.persons),
+        acts=tuple(np.concatenate([p.servo_ids, p.residual_ids]).astype(np.int64) for p in lay.persons),
+        geom_person=np.asarray(lay.geom_person, dtype=np.int64),
+    )
+    return blocks if blocks.fits(m) else None
+
+
 def _first_stable(
     m: mujoco.MjModel,
     d: mujoco.MjData,
@@ -169,11 +184,12 @@ def _first_stable(
     t0: int,
     warm: np.ndarray | None,
     substeps: int,
+    blocks: PersonBlocks | None = None,
 ) -> ILQRResult | None:
     """Optimise from the first initial control sequence that does not diverge."""
     for u0 in inits:
         try:
-            return optimise(m, d, cost, qpos0, qvel0, u0, cfg, active=active, t0=t0, warm0=warm, substeps=substeps)
+            return optimise(m, d, cost, qpos0, qvel0, u0, cfg, active=active, t0=t0, warm0=warm, substeps=substeps, blocks=blocks)
         except UnstableRollout:
             continue
     return None
@@ -277,6 +293,7 @@ def optimise_bout(
     # The collision term sees every pair of the athletes' geoms, also the arm-arm pairs
     # the simulation leaves out: the optimiser keeps arms apart softly, through the cost.
     cost = TrackingCost(m, lay, ref, cfg.weights, probe=scene.collision_probe())
+    blocks = person_blocks(scene)
     sol = BoutSolution(
         qpos=np.zeros((F, m.nq)), qvel=np.zeros((F, m.nv)), ctrl=np.zeros((F, m.nu)), actuator_force=np.zeros((F, m.nu)),
         root_wrench=np.zeros((F, len(lay.persons), 6)),
@@ -327,19 +344,19 @@ def optimise_bout(
             # Modes off and fallback first track without the residual; what fails is flagged.
             checked = residual.mode != "always"
             set_residual(use_res)
-            res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg.ilqr, active(use_res), s, warm, scene.substeps)
+            res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg.ilqr, active(use_res), s, warm, scene.substeps, blocks)
             untrackable = checked and res_or_none is None  # diverged: redone with the residual or reset
             if res_or_none is None and residual.mode != "off" and resid.size and not use_res:
                 use_res = True
                 set_residual(True)
-                res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg.ilqr, active(True), s, warm, scene.substeps)
+                res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], cfg.ilqr, active(True), s, warm, scene.substeps, blocks)
             if res_or_none is None:
                 # Last resort: restart this window from the reference state.
                 log.warning("physics: window at frame %d diverges from the simulated state; reset to the reference", s)
                 sol.resets += 1
                 qpos0 = lift_off_floor(scene, separate_persons(scene, ref.qpos[s]))
                 qvel0, warm = ref.qvel[s].copy(), None
-                res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [ref.ctrl[s : s + H]], cfg.ilqr, active(use_res), s, warm, scene.substeps)
+                res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [ref.ctrl[s : s + H]], cfg.ilqr, active(use_res), s, warm, scene.substeps, blocks)
                 if res_or_none is None:
                     # Keep the job alive: these frames hold the reference, reported as such.
                     C = _committed_frames(s, H, F, cfg.commit)
@@ -372,7 +389,7 @@ def optimise_bout(
                         sol.seconds[k_] += v_
                     sol.iterations += res.iterations
                     set_residual(True)
-                    res2 = _first_stable(m, d, cost, qpos0, qvel0, [res.traj.ctrl], cfg.ilqr, active(True), s, warm, scene.substeps)
+                    res2 = _first_stable(m, d, cost, qpos0, qvel0, [res.traj.ctrl], cfg.ilqr, active(True), s, warm, scene.substeps, blocks)
                     if res2 is not None and res2.traj.total < res.traj.total:
                         res, use_res = res2, True
                     else:
