@@ -206,7 +206,7 @@ def _targets(rows: list[dict[str, Any]]) -> None:
             r["target"] = "PCP >= 98.5, MPJPE <= 45"
             r["target_met"] = r["pcp_avg"] >= 98.5 and r["mpjpe_mm"] <= 45.0
         elif r["output"] == "physics" and fit_pcp is not None:
-            r["target"] = f"PCP >= {fit_pcp - 0.3:.1f}"
+            r["target"] = f"PCP >= fit - 0.3 = {fit_pcp - 0.3:.2f}"
             r["target_met"] = r["pcp_avg"] >= fit_pcp - 0.3
 
 

@@ -221,7 +221,7 @@ class ILQRConfig:
     """Forward differences of persons who do not touch share their steps (one DOF of each
     nudged at once, ``fd_split``): the same Jacobians from 1/persons of the steps; off runs
     ``mjd_transitionFD`` on the whole scene."""
-    backward_split_persons: bool = False
+    backward_split_persons: bool = True
     """In a window where nothing couples the persons (no contact in the Jacobians, no
     collision term in the cost), one Riccati recursion per person instead of one over all:
     the same policy up to rounding, from a fraction of the matrix products."""
