@@ -102,7 +102,7 @@ def test_adjoint_gradient_matches_finite_differences(substeps: int) -> None:
     rng = np.random.default_rng(0)
     U = rng.uniform(-3, 3, size=(8, 2))
     q0, v0 = np.array([0.3, -0.4]), np.array([0.5, 0.0])
-    cfg = ILQRConfig(deriv_every=1, fd_centered=True)
+    cfg = ILQRConfig(deriv_every=1, fd_centered=True, fd_interval_s=0.0)  # every substep: the exact chain
     traj = rollout(model, data, cost, q0, v0, U, substeps=substeps)
     g = trajectory_gradient(linearise(model, data, cost, traj, cfg, np.arange(2), substeps=substeps))
     eps = 1e-5
@@ -142,7 +142,7 @@ def test_substep_offsets_are_applied_once_and_differentiated() -> None:
             cost.prepare(model, d, t, sub)
             mujoco.mj_step(model, d)
     np.testing.assert_allclose(traj.qpos[-1], d.qpos, atol=1e-12)
-    cfg = ILQRConfig(deriv_every=1, fd_centered=True)
+    cfg = ILQRConfig(deriv_every=1, fd_centered=True, fd_interval_s=0.0)  # every substep: the exact chain
     g = trajectory_gradient(linearise(model, data, cost, traj, cfg, np.arange(2), substeps=substeps))
     eps = 1e-5
     for t, j in [(0, 0), (2, 1), (5, 0)]:

@@ -221,11 +221,15 @@ class ILQRConfig:
     """Forward differences of persons who do not touch share their steps (one DOF of each
     nudged at once, ``fd_split``): the same Jacobians from 1/persons of the steps; off runs
     ``mjd_transitionFD`` on the whole scene."""
+    fd_interval_s: float = 0.02
+    """Simulated time one substep's finite differences stand for (s, >= 0): every k-th MuJoCo
+    substep of a control step is differentiated, k = this / timestep rounded (at least 1), and
+    stands for itself and the k - 1 after it (chained as A^k, Σ A^i B); 0 = every substep."""
     backward_split_persons: bool = True
     """In a window where nothing couples the persons (no contact in the Jacobians, no
     collision term in the cost), one Riccati recursion per person instead of one over all:
     the same policy up to rounding, from a fraction of the matrix products."""
-    deriv_every: int = 8
+    deriv_every: int = 2
     """Dynamics Jacobians by finite differences every k frames, interpolated in between, >= 1."""
     jacobian_reuse: int = 2
     """Iterations that share one set of dynamics Jacobians (the line search still rolls out
@@ -246,7 +250,7 @@ class ILQRConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"ILQRConfig.{name} must be an integer >= 1, got {v!r}")
-        _check(self, positive=("mu_init", "mu_min", "fd_eps", "alpha_min"), non_negative=("rel_tol",))
+        _check(self, positive=("mu_init", "mu_min", "fd_eps", "alpha_min"), non_negative=("rel_tol", "fd_interval_s"))
         if not (self.mu_up > 1 and 0 < self.mu_down < 1 and self.alpha_min <= 1):
             raise ValueError(f"ILQRConfig: need mu_up > 1, 0 < mu_down < 1, alpha_min <= 1, got {self.mu_up}, {self.mu_down}, {self.alpha_min}")
 

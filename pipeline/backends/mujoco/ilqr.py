@@ -6,9 +6,11 @@ nominal trajectory's values).
 
 One iteration:
 1. *Linearise* along the nominal rollout: dynamics Jacobians A, B by finite
-   differences (``mujoco.mjd_transitionFD``), every ``deriv_every`` steps with
-   linear interpolation in between (MuJoCo MPC's derivative skip), the knots on worker
-   threads (``Workers``); cost gradients/Gauss–Newton Hessians from the ``Cost``.
+   differences (``mujoco.mjd_transitionFD``, or ``fd_split`` for persons apart), every
+   ``deriv_every`` steps with linear interpolation in between (MuJoCo MPC's derivative
+   skip), within a step one MuJoCo substep per ``fd_interval_s`` standing for the next
+   ones, the knots on worker threads (``Workers``); cost gradients/Gauss–Newton Hessians
+   from the ``Cost``; the Riccati recursion split per person where nothing couples them.
 2. *Backward pass*: Riccati recursion with Levenberg–Marquardt regularisation μ on
    Q_uu (raised ×``mu_up`` on a non-PD Q_uu or a failed line search, lowered on
    success).
@@ -280,6 +282,13 @@ class Workers:
         self.close()
 
 
+def fd_every(model: mujoco.MjModel, cfg: ILQRConfig) -> int:
+    """Every how many MuJoCo substeps ``knot_jacobians`` differentiates (``ILQRConfig.fd_interval_s``), >= 1."""
+    if cfg.fd_interval_s <= 0:
+        return 1
+    return max(1, int(round(cfg.fd_interval_s / float(model.opt.timestep))))
+
+
 def knot_jacobians(
     model: mujoco.MjModel,
     data: mujoco.MjData,
@@ -296,7 +305,8 @@ def knot_jacobians(
     """(A (nx, nx), B (nx, nu)) of one control step (``substeps`` MuJoCo steps with the
     control held, the cost's ``prepare`` before each) at state (qpos, qvel, warm start) and
     control u, by finite differences on ``data`` (overwritten), chained over the substeps:
-    x' = f(f(x, u), u) (the cost's time-dependent offsets do not depend on u).
+    x' = f(f(x, u), u) (the cost's time-dependent offsets do not depend on u). Only every
+    ``fd_every`` -th substep is differentiated; the substeps in between reuse its Jacobians.
 
     Each substep's Jacobians come from ``fd_split.transition_fd`` (one DOF of every person
     nudged per step; the same numbers) when ``blocks`` is given, ``cfg.fd_split_persons`` is on,
@@ -315,11 +325,22 @@ def knot_jacobians(
     cost.prepare(model, data, t, 0)
     jacobians()
     A_t, B_t = Ab.copy(), Bb.copy()
+    every = fd_every(model, cfg)
+    at = prepared = 0  # the substep whose start state ``data`` holds, and is prepared for
     for sub in range(1, substeps):
-        mujoco.mj_step(model, data)
-        data.ctrl[:] = u
-        cost.prepare(model, data, t, sub)
-        jacobians()
+        if sub % every == 0:
+            while at < sub:
+                if prepared != at:
+                    data.ctrl[:] = u
+                    cost.prepare(model, data, t, at)
+                    prepared = at
+                mujoco.mj_step(model, data)
+                at += 1
+            data.ctrl[:] = u
+            cost.prepare(model, data, t, sub)
+            prepared = sub
+            jacobians()
+        # Otherwise this substep's Jacobians are those of the last differentiated one.
         A_t, B_t = Ab @ A_t, Ab @ B_t + Bb
     return A_t, B_t
 
