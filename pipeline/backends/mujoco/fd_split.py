@@ -53,10 +53,6 @@ class PersonBlocks:
     def nv(self) -> int:
         return sum(len(d) for d in self.dofs)
 
-    @property
-    def nu(self) -> int:
-        return sum(len(a) for a in self.acts)
-
     def fits(self, model: mujoco.MjModel) -> bool:
         """True when the blocks partition the model's DOFs and actuators (no activations)."""
         dofs = np.sort(np.concatenate(self.dofs)) if self.dofs else np.zeros(0)
