@@ -47,6 +47,10 @@ class HumanoidConfig:
     """Servo damping kv = kv_ratio · kp (s), >= 0."""
     torque_per_kg: float = 6.0
     """Servo torque limit (N·m per kg of body mass, times the joint's strength), > 0."""
+    torque_limits: Literal["servo", "human"] = "servo"
+    """``servo``: each servo's limit is ``torque_per_kg`` × mass × strength; ``human``: also at
+    most the joint group's human peak (``pipeline.evaluate.effort``) over √(hinges of the joint),
+    so that no joint's torque norm can exceed a human's."""
     armature: float = 0.25
     """Joint armature (kg·m²) of the strongest joints of a 75 kg person, scaled by strength
     and mass: numerical stability at the video rate, at the price of inertia, >= 0."""

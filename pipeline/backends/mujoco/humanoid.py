@@ -43,6 +43,7 @@ import numpy as np
 
 from pipeline.backends.mujoco.config import DENSITY_KG_M3, HumanoidConfig, ResidualConfig
 from pipeline.backends.mujoco.skeleton import Skeleton
+from pipeline.evaluate.effort import HUMAN_PEAK_TORQUE_NM_PER_KG, group_of_joint, joint_of_actuator
 
 GRAVITY = 9.81
 
@@ -190,6 +191,10 @@ def _person_xml(
             )
             kp = cfg.kp_per_kg * mass * j.strength
             lim = cfg.torque_per_kg * mass * j.strength
+            if cfg.torque_limits == "human":
+                joint = joint_of_actuator(j.name)
+                hinges = sum(joint_of_actuator(k.name) == joint for k in b.joints)
+                lim = min(lim, 0.999 * HUMAN_PEAK_TORQUE_NM_PER_KG[group_of_joint(joint)] * mass / np.sqrt(hinges))
             # Targets may lie beyond the joint range so that the servo can be driven
             # hard (fast punches); the torque limit bounds the effort.
             lo, hi = j.range_rad[0] - cfg.target_slack_rad, j.range_rad[1] + cfg.target_slack_rad
