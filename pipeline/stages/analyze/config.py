@@ -76,6 +76,18 @@ class PunchConfig:
     raw_speed_max_ratio: float = 2.0
     """The raw measurement is kept between the analysed speed and this multiple of it (>= 1),
     so that a raw triangulation outlier cannot make a punch out of a reach."""
+    min_measured_speed_mps: float = 4.0
+    """With ``speed_source="raw"``, where the raw triangulation saw the wrist in every frame of
+    the way out, the peak speed it measures there (``punches.Candidate.measured_mps``) must reach
+    this (m/s, >= 0): a feint or a glove moved up to block is slower than a punch, which the
+    smoothed analysed track, slowing both, does not tell apart."""
+    fast_measured_mps: float = 5.5
+    """... and where it reaches this, the fist passes the two speed rules on the analysed track
+    (``min_speed_mps``, ``min_peak_speed_mps``): a fit from few views slows a punch to a
+    third of its speed, the raw triangulation keeps it (m/s, > 0) ..."""
+    fast_min_excursion_m: float = 0.12
+    """... and it needs to go only this far from its guard (m, > 0): a two-view fit shortens a
+    punch, and a fist held out at the target before pulls the guard estimate out."""
     max_gap_frames: int = 4
     """Gaps in a joint's estimate up to this many frames are interpolated (>= 0)."""
     flattened: bool = False
@@ -96,13 +108,16 @@ class PunchConfig:
         _positive("PunchConfig", guard_window_s=self.guard_window_s, rest_speed_mps=self.rest_speed_mps,
                   min_excursion_m=self.min_excursion_m, min_speed_mps=self.min_speed_mps,
                   min_peak_speed_mps=self.min_peak_speed_mps, max_duration_s=self.max_duration_s,
-                  max_out_s=self.max_out_s)  # fmt: skip
+                  max_out_s=self.max_out_s, fast_measured_mps=self.fast_measured_mps,
+                  fast_min_excursion_m=self.fast_min_excursion_m)  # fmt: skip
         if not (0.0 < self.flattened_max_ratio <= 1.0 and self.flattened_min_raw_speed_mps > 0 and self.flattened_min_out_s > 0):
             raise ValueError(
                 f"PunchConfig: flattened_max_ratio must be in (0, 1], flattened_min_raw_speed_mps and "
                 f"flattened_min_out_s > 0; got {self.flattened_max_ratio}, {self.flattened_min_raw_speed_mps}, "
                 f"{self.flattened_min_out_s}"
             )
+        if not self.min_measured_speed_mps >= 0.0:
+            raise ValueError(f"PunchConfig.min_measured_speed_mps must be >= 0, got {self.min_measured_speed_mps}")
         if not self.raw_speed_max_ratio >= 1.0:
             raise ValueError(f"PunchConfig.raw_speed_max_ratio must be >= 1, got {self.raw_speed_max_ratio}")
         if not (0.0 < self.edge_frac < 1.0 and 0.0 < self.arrive_frac < 1.0 and 0.0 <= self.min_extension <= 1.0):

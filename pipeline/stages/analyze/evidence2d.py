@@ -253,7 +253,9 @@ def view_failed(
         return "new"
     if c.start <= 0 or c.end >= sig.ok.shape[1] - 1:
         return "whole"
-    if rule_failed(replace(c, out_speed_mps=np.inf, peak_speed_mps=np.inf), cfg, fps) is not None:
+    # The speed rules are the views' to judge, the excursion was (``min_excursion_3d_m``).
+    loose = replace(c, out_speed_mps=np.inf, peak_speed_mps=np.inf, measured_mps=np.inf, excursion_m=np.inf)
+    if rule_failed(loose, cfg, fps) is not None:
         return "form"
     exc, speed = window_evidence(sig, c.start, c.peak, c.end)
     if not np.any((exc >= vcfg.view_min_excursion_m) & (speed >= vcfg.view_min_speed_mps)):

@@ -14,6 +14,8 @@ hook) are two candidates split at the smallest excursion between them (``split_a
 A candidate is a punch when it passes every rule of ``RULES`` (thresholds in
 ``PunchConfig``), the checks a coach makes by eye:
 
+- ``excursion``: the fist goes ``min_excursion_m`` from its guard (``fast_min_excursion_m``
+  when its measured speed is fast, below);
 - ``duration``: out and back within ``max_duration_s`` (a hand held out is no punch);
 - ``out_speed``: the way out reaches ``min_speed_mps`` relative to the neck;
 - ``clinch``: the strike is not within ``clinch_margin_s`` of a grip (the stage passes the
@@ -27,7 +29,16 @@ A candidate is a punch when it passes every rule of ``RULES`` (thresholds in
 - ``forward``: the fist ends ``min_forward_m`` farther towards the opponent than it started
   (blocks, parries, catches and hands leaving a clinch grip do not go at him);
 - ``peak_speed``: the world-frame glove speed over the punch reaches ``min_peak_speed_mps``
-  (feints and guard adjustments are slower).
+  (feints and guard adjustments are slower);
+- ``measured_speed``: where the raw triangulation saw the wrist in every frame of the way out,
+  the peak speed it measures there (``Candidate.measured_mps``) reaches
+  ``min_measured_speed_mps``: the smoothed analysed track slows a punch and a feint alike, the
+  raw one tells them apart (where it bridged a gap it reads low, and does not reject).
+
+A measured speed of at least ``fast_measured_mps`` passes ``out_speed`` and ``peak_speed`` and
+lowers the ``excursion`` threshold to ``fast_min_excursion_m``: a fit from two views can slow a
+punch to a third of its speed and shorten it, and a fist held out at the target pulls the guard
+estimate towards it; the raw triangulation's speed still tells a punch from a feint.
 """
 
 from __future__ import annotations
@@ -42,7 +53,8 @@ from pipeline.stages.analyze.body import Body, fill_gaps, to_local
 from pipeline.stages.analyze.config import PunchConfig
 
 RULES: tuple[str, ...] = (
-    "duration", "out_speed", "clinch", "guard_start", "elbow_extends", "extension", "forward", "peak_speed",
+    "excursion", "duration", "out_speed", "clinch", "guard_start", "elbow_extends", "extension", "forward", "peak_speed",
+    "measured_speed",
 )  # fmt: skip
 """The punch rules, in the order they are checked (module docstring; ``rule_failed``)."""
 
@@ -100,6 +112,13 @@ class Candidate:
     start_drop: float
     elbow_open_deg: float
     near_clinch: bool
+    measured_mps: float = float("nan")
+    """Peak glove speed on the raw triangulation over the way out (``raw_peak_speed``, along the
+    analysed path), kept within ``PunchConfig.raw_speed_max_ratio`` of ``peak_speed_mps``, m/s;
+    NaN where the raw triangulation does not measure it."""
+    measured_whole: bool = False
+    """The raw triangulation saw the wrist in every frame of the way out (start .. strike + 1):
+    no gap bridged by a straight line, which lowers the peak, so a low ``measured_mps`` is low."""
 
 
 @dataclass(frozen=True)
@@ -250,14 +269,25 @@ def _near_clinch(clinch: np.ndarray | None, n: int, margin: int) -> np.ndarray:
     return out
 
 
-def candidates(body: Body, h: HandTrack, cfg: PunchConfig, clinch: np.ndarray | None = None) -> list[Candidate]:
+def candidates(
+    body: Body,
+    h: HandTrack,
+    cfg: PunchConfig,
+    clinch: np.ndarray | None = None,
+    raw: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> list[Candidate]:
     """Every excursion peak of one fist at least ``min_excursion_m`` high, measured for the
-    rules, in time order. ``clinch`` (frames,) bool marks clinch (or grip) frames."""
+    rules, in time order. ``clinch`` (frames,) bool marks clinch (or grip) frames; ``raw``: the
+    fist's raw wrist (frames, 3), validity and view counts on the same rows, where its speed is
+    measured (``Candidate.measured_mps``; with ``speed_source="raw"`` only), and then peaks down to
+    ``fast_min_excursion_m`` are candidates too (the ``excursion`` rule judges them)."""
     exc, ok, v = h.excursion, h.ok, h.speed_rel
     n = exc.shape[0]
     if n < 5 or not ok.any():
         return []
-    peaks, _ = find_peaks(exc, height=cfg.min_excursion_m, prominence=0.5 * cfg.min_excursion_m)
+    measure = raw is not None and cfg.speed_source == "raw"
+    lowest = min(cfg.min_excursion_m, cfg.fast_min_excursion_m) if measure else cfg.min_excursion_m
+    peaks, _ = find_peaks(exc, height=lowest, prominence=0.5 * cfg.min_excursion_m)
     max_out = max(2, int(round(cfg.max_out_s * body.fps)))
     near_clinch = _near_clinch(clinch, n, int(round(cfg.clinch_margin_s * body.fps)))
     shoulder, _ = body.point(f"{h.hand}_shoulder")
@@ -284,26 +314,37 @@ def candidates(body: Body, h: HandTrack, cfg: PunchConfig, clinch: np.ndarray | 
         drop = float(-h.r[a, 2] / h.arm_m) if has_arm else float("nan")
         both = h.elbow_ok[k] and h.elbow_ok[a]
         opened = float(h.elbow_deg[k] - h.elbow_deg[a]) if both else float("nan")
+        measured, whole = float("nan"), False
+        if raw is not None and measure:
+            m = raw_peak_speed(*raw, int(a), int(k), body.fps, h.wrist if cfg.speed_along_path else None)
+            if m is not None:
+                measured = float(np.clip(m, peak_speed, cfg.raw_speed_max_ratio * peak_speed))
+                whole = bool(raw[1][a : k + 2].all())
         out.append(
             Candidate(h.hand, int(a), int(k), int(b), int(t_out), int(k0), float(exc[k0]), v_out, peak_speed, ext,
-                      float(h.r[k, 0] - h.r[a, 0]), drop, opened, bool(near_clinch[k]))  # fmt: skip
+                      float(h.r[k, 0] - h.r[a, 0]), drop, opened, bool(near_clinch[k]), measured, whole)  # fmt: skip
         )
     return out
 
 
 def rule_failed(c: Candidate, cfg: PunchConfig, fps: float) -> str | None:
     """The first rule of ``RULES`` that ``c`` fails, None for a punch. A measure that could
-    not be taken (NaN: no arm length, elbow not estimated) fails its rule, except the elbow's:
-    without it the other rules decide."""
+    not be taken (NaN: no arm length, elbow not estimated) fails its rule, except the elbow's
+    and the measured speed's: without them the other rules decide. A measured speed of at least
+    ``fast_measured_mps`` passes both speed rules on the analysed keypoints and needs an
+    excursion of ``fast_min_excursion_m`` only."""
+    fast = bool(c.measured_mps >= cfg.fast_measured_mps)
     checks = {
+        "excursion": c.excursion_m >= (cfg.fast_min_excursion_m if fast else cfg.min_excursion_m),
         "duration": 2 <= c.end - c.start <= cfg.max_duration_s * fps,
-        "out_speed": c.out_speed_mps >= cfg.min_speed_mps,
+        "out_speed": c.out_speed_mps >= cfg.min_speed_mps or fast,
         "clinch": not c.near_clinch,
         "guard_start": c.start_drop <= cfg.max_start_drop,
         "elbow_extends": not c.elbow_open_deg < cfg.min_elbow_open_deg,
         "extension": c.extension >= cfg.min_extension,
         "forward": c.forward_m >= cfg.min_forward_m,
-        "peak_speed": c.peak_speed_mps >= cfg.min_peak_speed_mps,
+        "peak_speed": c.peak_speed_mps >= cfg.min_peak_speed_mps or fast,
+        "measured_speed": not (c.measured_whole and c.measured_mps < cfg.min_measured_speed_mps),
     }
     for name in RULES:
         if not checks[name]:
@@ -311,12 +352,19 @@ def rule_failed(c: Candidate, cfg: PunchConfig, fps: float) -> str | None:
     return None
 
 
-def detect(body: Body, h: HandTrack, cfg: PunchConfig, clinch: np.ndarray | None = None) -> list[Detection]:
+def detect(
+    body: Body,
+    h: HandTrack,
+    cfg: PunchConfig,
+    clinch: np.ndarray | None = None,
+    raw: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> list[Detection]:
     """The punches of one fist, in time order: the candidates that pass every rule (see the
-    module docstring). ``clinch`` (frames,) bool marks clinch frames."""
+    module docstring). ``clinch`` (frames,) bool marks clinch frames; ``raw`` the fist's raw
+    wrist track (``candidates``)."""
     idx = [body.names.index(f"{h.hand}_{j}") for j in ("wrist", "elbow", "shoulder") if f"{h.hand}_{j}" in body.names]
     out: list[Detection] = []
-    for c in candidates(body, h, cfg, clinch):
+    for c in candidates(body, h, cfg, clinch, raw):
         if rule_failed(c, cfg, body.fps) is not None:
             continue
         score = np.clip((c.excursion_m - cfg.min_excursion_m) / cfg.min_excursion_m + 0.5, 0.0, 1.0)

@@ -179,7 +179,7 @@ def _punches_of(me: Body, opp: Body | None, R: np.ndarray, r_ok: np.ndarray, sta
     Rm, rm_ok = facing_frames(motion, opp) if motion is not None else (R, r_ok)
     for hand in ("left", "right"):
         h = hand_track(me, R, r_ok, hand, cfg.punch)
-        found = detect(me, h, cfg.punch, clinch)
+        found = detect(me, h, cfg.punch, clinch, raw.get(hand))
         if motion is not None and cfg.punch.flattened:
             hm = hand_track(motion, Rm, rm_ok, hand, cfg.punch)
             found = sorted(found + flattened_punches(motion, hm, me, h, raw.get(hand), cfg.punch, clinch),
