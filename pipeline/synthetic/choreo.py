@@ -75,6 +75,22 @@ class Punch:
     """``aim="short"``: how far before contact the glove stops (metres)."""
     counter: bool = False
     """Thrown in answer to the opponent's combination."""
+    back_by_s: float = float("inf")
+    """Time (s) by which the fist must be back in guard: the same hand's next punch leaves
+    then. A duration that would end later (the speed calibration stretches punches) is
+    scaled down, ``out_s`` and ``back_s`` alike, to end exactly then."""
+
+    def __post_init__(self) -> None:
+        if self.end_s > self.back_by_s + 1e-9:
+            room = self.back_by_s - self.t0_s - self.hold_s
+            if room <= 0.0:
+                raise ValueError(
+                    f"Punch {self.kind} at {self.t0_s:.3f} s: back_by_s={self.back_by_s:.3f} s leaves "
+                    f"no time for the punch (hold ends at {self.t0_s + self.hold_s:.3f} s)"
+                )
+            k = room / (self.out_s + self.back_s)
+            object.__setattr__(self, "out_s", self.out_s * k)
+            object.__setattr__(self, "back_s", self.back_s * k)
 
     @property
     def hand(self) -> str:

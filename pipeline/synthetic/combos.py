@@ -21,6 +21,7 @@ base version only by what is listed above.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +40,11 @@ SHORTFALL_M = (0.08, 0.14)
 PULL_PITCH_RAD = -0.5
 """Backward lean of a defender pulling away from a punch at his head (the head moves
 back ~0.3 m, so the straightened arm falls short)."""
+SAME_HAND_GAP_S = 0.06
+"""A punch leaves this long after the same hand's previous punch is back in guard."""
+BACK_BY_MARGIN_S = 0.04
+"""A punch (or feint) must be back in guard this long before the same hand's next one
+leaves, whatever the speed calibration does to its duration (``Punch.back_by_s``)."""
 FEINT_AMPLITUDE = (0.2, 0.35)
 """Range of the fraction of the path a feint travels."""
 AIMS: dict[str, tuple[tuple[PunchAim, ...], tuple[float, ...]]] = {
@@ -101,17 +107,20 @@ def _schedule(
     person: int, kinds: list[PunchKind], t_start: float, t_stop: float, rng: np.random.Generator, counter: bool
 ) -> list[Punch]:
     """Punches of ``kinds`` from ``t_start``, each ending before ``t_stop``; a punch waits for the
-    previous one's strike (other hand) or its return (same hand)."""
+    previous one's strike (other hand) and for the return of the last punch of its own hand
+    (``SAME_HAND_GAP_S`` after it)."""
     out: list[Punch] = []
     t = t_start
     for kind in kinds:
         fam = family(kind)
         aims, probs = AIMS[fam]
         aim = aims[int(rng.choice(len(aims), p=probs))]
+        hand = "right" if kind in REAR_KINDS else "left"
         if out:
             prev = out[-1]
-            same = prev.hand == ("right" if kind in REAR_KINDS else "left")
-            t = prev.end_s + 0.06 if same else prev.peak_s + float(rng.uniform(0.03, 0.12))
+            same = prev.hand == hand
+            t = prev.end_s + SAME_HAND_GAP_S if same else prev.peak_s + float(rng.uniform(0.03, 0.12))
+            t = max([t] + [q.end_s + SAME_HAND_GAP_S for q in out if q.hand == hand])
         p = _speed_punch(person, kind, t, aim, rng, counter)
         if p.end_s > t_stop:
             break
@@ -203,4 +212,23 @@ def vary(
         plan = _phase(kind, a, b, nxt, rng)
         punches += _evasions(plan.punches, slips, rng)
         d_keys += plan.d_keys
-    return d_keys, punches, slips
+    return d_keys, _back_in_time(punches), slips
+
+
+def _back_in_time(punches: list[Punch]) -> list[Punch]:
+    """``punches`` (same order) with ``back_by_s`` set: each fist back in guard
+    ``BACK_BY_MARGIN_S`` before the same athlete's same hand leaves again (feints included)."""
+    out = list(punches)
+    for person in (0, 1):
+        for hand in ("left", "right"):
+            mine = [i for i, p in enumerate(out) if p.person == person and p.hand == hand]
+            idx = sorted(mine, key=lambda i: out[i].t0_s)
+            for i, j in zip(idx[:-1], idx[1:], strict=False):
+                back_by = out[j].t0_s - BACK_BY_MARGIN_S
+                if out[i].end_s > back_by + 1e-9:
+                    raise ValueError(
+                        f"combos: person {person} {hand} {out[i].kind} at {out[i].t0_s:.3f} s ends at "
+                        f"{out[i].end_s:.3f} s, after the same hand's {out[j].kind} leaves at {out[j].t0_s:.3f} s"
+                    )
+                out[i] = dataclasses.replace(out[i], back_by_s=back_by)
+    return out

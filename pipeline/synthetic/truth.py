@@ -4,7 +4,11 @@ Every scripted punch (feints apart) becomes a labelled punch:
 
 - athlete, hand, type: from the script (``body_jab`` / ``body_cross`` are ``body_shot``);
 - start / peak / end frame: the frames nearest the fist leaving the guard, the strike
-  (full extension) and the fist back in the guard;
+  (full extension: the end of the fist's outward stroke) and the fist back in the guard.
+  The script's strike is when the stroke reaches its strike point; a strike point out of
+  the arm's reach is never reached: the arm straightens (``FULL_EXTENSION``) before and
+  the fist stops there, so the strike frame is the first frame of the straight-arm run
+  before the scripted strike at which the glove has stopped (``strike_frame``);
 - peak speed: the ground-truth wrist's peak speed (``SyntheticBout.punch_peak_speed_mps``);
 - target: the region the script aims at (head, or body for body shots);
 - outcome: what the glove touches on the ground-truth bodies over the strike's frames
@@ -34,7 +38,7 @@ from pipeline.schema.analytics import EVADE_KINDS, HANDS, OUTCOMES, PUNCH_TYPES,
 from pipeline.schema.base import check_array
 from pipeline.schema.joints import COCO17_FEET
 from pipeline.synthetic.choreo import Choreography, Punch
-from pipeline.synthetic.strikes import frame_at
+from pipeline.synthetic.strikes import frame_at, glove_centre
 
 CONTACT_TOL_M = 0.025
 """A glove within this of a volume touches it (the bodies' separation leaves touching
@@ -42,6 +46,39 @@ volumes 2-20 mm apart: its smoothed rounds aim 2 cm out)."""
 CLINCH_GRIP_MIN = 0.5
 """Frames whose scripted clinch grip weight is at least this are clinch frames."""
 INTENTS: tuple[str, ...] = ("legacy", "land", "block", "slip", "short")
+FULL_EXTENSION = 0.95
+"""Shoulder-to-wrist distance, as a fraction of the arm's length, of a straight arm (the
+arm IK follows targets within 0.92 of the arm and saturates towards 0.985 beyond; the
+bodies' separation can pull a straight arm back a little)."""
+STOPPED_FRAC = 0.25
+"""A glove slower than this fraction of its punch's peak speed has stopped."""
+
+
+def strike_frame(xyz_m: np.ndarray, person: int, hand: str, start: int, peak: int) -> int:
+    """The frame the fist arrives: ``peak`` (the scripted strike frame), unless ``person``'s
+    ``hand`` arm is straight (extension >= ``FULL_EXTENSION`` on the joints ``xyz_m``
+    (frames, 2, 23, 3)) from an earlier frame through ``peak``: then the first frame of
+    that run at which the glove is slower than ``STOPPED_FRAC`` of its peak speed since
+    ``start`` (a straightened arm still sweeping round is still on its way)."""
+    j = {k: COCO17_FEET.index(f"{hand}_{k}") for k in ("shoulder", "elbow", "wrist")}
+    arm = xyz_m[:, person]
+    lo, hi = max(start - 1, 0), min(peak + 2, arm.shape[0])
+    a = arm[lo:hi]
+    length = np.linalg.norm(a[:, j["elbow"]] - a[:, j["shoulder"]], axis=1) + np.linalg.norm(
+        a[:, j["wrist"]] - a[:, j["elbow"]], axis=1
+    )
+    straight = np.linalg.norm(a[:, j["wrist"]] - a[:, j["shoulder"]], axis=1) >= FULL_EXTENSION * length
+    f0 = peak
+    while f0 > start + 1 and straight[f0 - lo] and straight[f0 - 1 - lo]:
+        f0 -= 1
+    if f0 == peak:
+        return peak
+    g = glove_centre(a, hand)
+    speed = np.zeros(len(g))
+    speed[1:-1] = np.linalg.norm(g[2:] - g[:-2], axis=1)  # per two frames: only ratios are used
+    top = float(speed[start - lo : peak - lo + 1].max())
+    slow = [f for f in range(f0, peak + 1) if speed[f - lo] < STOPPED_FRAC * top]
+    return slow[0] if slow else peak
 
 
 @dataclass(frozen=True)
@@ -158,6 +195,7 @@ def record_truth(ch: Choreography, xyz_m: np.ndarray, peak_speed_mps: np.ndarray
         if p.feint:
             feints.append({"person": p.person, "hand": p.hand, **fr})
             continue
+        fr["peak"] = strike_frame(xyz_m, p.person, p.hand, fr["start"], fr["peak"])
         win = np.arange(max(fr["peak"] - 1, 0), min(fr["peak"] + 3, n_f))
         outcome, _ = contact_outcome(xyz_m, p.person, p.hand, win)
         rows.append(
