@@ -62,8 +62,10 @@ from pipeline.stages.physics_incremental import (
 )
 
 if TYPE_CHECKING:
+    from pipeline.backends.mujoco.ik_reuse import ReferenceIK
     from pipeline.backends.mujoco.reference import Scene
     from pipeline.backends.mujoco.skeleton import Skeleton
+    from pipeline.backends.mujoco.tracking import Reference
 
 log = logging.getLogger(__name__)
 
@@ -307,6 +309,30 @@ def residual_actuators(cfg: PhysicsConfig) -> ResidualConfig | None:
     return None if cfg.residual.mode == "off" else cfg.residual
 
 
+def sole_lift_m(cfg: PhysicsConfig) -> float:
+    """Height (m, >= 0) of a planted sole above the floor in the reference: 1 mm inside the
+    floor's contact margin."""
+    return max(cfg.humanoid.floor_margin_m - 0.001, 0.0)
+
+
+def stage_reference(
+    scene: Scene, kp: Keypoints3D, rows: list[int], cfg: PhysicsConfig, sole_m: np.ndarray, stored_ik: ReferenceIK | None = None
+) -> tuple[Reference, np.ndarray, np.ndarray, ReferenceIK]:
+    """The kinematic reference this stage tracks for keypoint rows ``rows`` in ``scene``
+    (``reference.reference_and_ik`` with ``cfg``'s settings; ``sole_m`` (persons,) m):
+    (reference, targets, weight, inverse kinematics). ``stored_ik``: an earlier run's IK to
+    reuse where its inputs are unchanged (``pipeline.backends.mujoco.ik_reuse``)."""
+    from pipeline.backends.mujoco.reference import reference_and_ik
+
+    rcfg = cfg.reference
+    return reference_and_ik(
+        scene, kp, rows, separate=rcfg.separate, substeps=cfg.humanoid.substeps if rcfg.schedule else 0,
+        flat_feet=rcfg.flat_feet, sole_lift_m=sole_lift_m(cfg), ff_friction=rcfg.feedforward_friction,
+        ff_smooth_frames=rcfg.feedforward_smooth_frames, separation_clearance_m=rcfg.separation_clearance_m,
+        posture_weight=rcfg.ik_posture_weight, sole_m=sole_m, balance=rcfg, stored_ik=stored_ik,
+    )  # fmt: skip
+
+
 def run(
     inputs: PhysicsInputs,
     cfg: PhysicsConfig = PhysicsConfig(),
@@ -356,7 +382,7 @@ def _run(
     skeleton_kind = "keypoints" if skeleton_source(kp, rows, inputs.bodyfit, cfg) else "bodyfit"
     body = body_digest(skeleton_kind, pids, inputs.bodyfit)
     hcfg, rcfg, res_act = cfg.humanoid, cfg.reference, residual_actuators(cfg)
-    sole_lift = max(hcfg.floor_margin_m - 0.001, 0.0)
+    sole_lift = sole_lift_m(cfg)
     foot_offsets_mm = 0.0
     scene = None
     if prev is not None and prev.checkpoints.body_digest != body:
@@ -395,14 +421,17 @@ def _run(
     ref_digest = np.zeros(0, dtype=np.uint64)
     ref_vals: tuple[np.ndarray, np.ndarray] | None = None
     first_ref_change, first_ref_change_exact, reused_frames, bout = -1, -1, 0, None
+    ik: ReferenceIK | None = None
+    ik_note = "solved every frame (full run)" if prev is None else ""
     for g in groups:
         sub = scene if len(g) == len(rows) else mp.build_scene([skels[i] for i in g], [pids[i] for i in g], kp.fps, kp.joint_names, hcfg, res_act)
-        ref, targets, weight = mp.build_reference(
-            sub, kp, [rows[i] for i in g], separate=rcfg.separate, substeps=hcfg.substeps if rcfg.schedule else 0,
-            flat_feet=rcfg.flat_feet, sole_lift_m=sole_lift, ff_friction=rcfg.feedforward_friction,
-            ff_smooth_frames=rcfg.feedforward_smooth_frames, separation_clearance_m=rcfg.separation_clearance_m,
-            posture_weight=rcfg.ik_posture_weight, sole_m=sole[g], balance=rcfg,
-        )
+        stored_ik = prev.checkpoints.stored_ik() if prev is not None and len(g) == len(rows) else None
+        ref, targets, weight, g_ik = stage_reference(sub, kp, [rows[i] for i in g], cfg, sole[g], stored_ik)
+        if len(g) == len(rows):
+            ik = g_ik
+            if prev is not None:
+                ik_note = _ik_note(g_ik, stored_ik is not None)
+                log.info("physics: inverse kinematics %s", ik_note)
 
         def prog(d: int, n: int, msg: str, _g: list[int] = g) -> None:
             if progress is not None:
@@ -476,7 +505,7 @@ def _run(
         first_input_change = first_changed(inputs.previous.checkpoints.input_digest, in_digest)
     checkpoints = None
     if bout is not None:
-        checkpoints = checkpoints_of(kp, pids, in_digest, ref_digest, body, skels, sole, bout, foot_offsets_mm, ref_vals)
+        checkpoints = checkpoints_of(kp, pids, in_digest, ref_digest, body, skels, sole, bout, foot_offsets_mm, ref_vals, ik)
     compute_s = time.perf_counter() - t_start
     motion_s = max(F - 1, 1) / kp.fps
     body_pen = mp.deepest_inter_person_mm(contacts, F)
@@ -515,6 +544,8 @@ def _run(
         "reused_frames": int(reused_frames),
         "replanned_from_frame": int(reused_frames) if reused_frames < F else -1,
         "replanned_windows": int(agg["windows"]) - (bout.planned_from_window if bout is not None else 0),
+        "ik_reused_frames": int(ik.reused_frames) if ik is not None else 0,
+        "ik_incremental": ik_note,
         "first_changed_input_frame": first_input_change,
         "first_changed_reference_frame": first_ref_change,
         "first_changed_reference_frame_exact": first_ref_change_exact,
@@ -545,6 +576,19 @@ def untrackable_message(
         else "kept without it (residual.mode=off; stats: untrackable_windows)"
     )
     return f"physics: {n_bad} of {n_windows} windows (frames {text}{more}) could not be tracked without a residual root force; {what}"
+
+
+def _ik_note(ik: ReferenceIK, stored: bool) -> str:
+    """What an incremental run did with the previous run's inverse kinematics (``ik``: the
+    reference's; ``stored``: whether the previous checkpoints held one)."""
+    F = int(ik.input_digest.shape[0])
+    if not stored:
+        return "solved every frame: the previous run stored no inverse kinematics (older checkpoints)"
+    if ik.reused_frames == 0:
+        return f"solved every frame: {ik.why}"
+    if ik.reused_frames == F:
+        return f"reused every frame (0-{F - 1})"
+    return f"reused frames 0-{ik.reused_frames - 1}, solved from frame {ik.reused_frames}"
 
 
 def _reference_values(

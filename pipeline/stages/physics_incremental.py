@@ -24,6 +24,11 @@ skeletons as long as the body fit's shapes are unchanged (``body_digest``). Rebu
 would move a little with any edit (their keypoint sites and feet are medians over every
 frame), which would change every frame of the simulation; a full run re-estimates them.
 
+The reference's inverse kinematics, warm-started frame to frame, is stored too
+(``PhysicsCheckpoints.ik_qpos``): a re-run copies its frames before the first whose IK
+inputs changed, bit for bit what solving them again gives, and solves on from there
+(``pipeline.backends.mujoco.ik_reuse``; the manifest's ``ik_reused_frames``, ``ik_incremental``).
+
 Pure numpy: no mujoco import here.
 """
 
@@ -42,6 +47,7 @@ from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.results import BodyFit, PhysicsResult
 
 if TYPE_CHECKING:
+    from pipeline.backends.mujoco.ik_reuse import ReferenceIK
     from pipeline.backends.mujoco.physics import BoutSolution, WindowRecord
     from pipeline.backends.mujoco.skeleton import Skeleton
     from pipeline.backends.mujoco.tracking import Reference
@@ -72,6 +78,10 @@ class PhysicsCheckpoints:
     the kinematic reference the optimiser reads, one column each, and the change of each
     that counts as none (``reference_values``); None in checkpoints written before them
     (an incremental re-run then re-plans every window).
+    ik_qpos (F, nq): the reference's inverse kinematics (before balance and separation);
+    ik_input_digest (F,) uint64: hash of each frame's IK inputs; ik_model_digest: hash of
+    the scene and IK settings (``pipeline.backends.mujoco.ik_reuse``); None and "" in
+    checkpoints written before them (an incremental re-run then solves the IK of every frame).
     """
 
     person_ids: np.ndarray
@@ -96,6 +106,9 @@ class PhysicsCheckpoints:
     foot_site_offset_mm_mean: float = 0.0
     reference_values: np.ndarray | None = None
     reference_tol: np.ndarray | None = None
+    ik_qpos: np.ndarray | None = None
+    ik_input_digest: np.ndarray | None = None
+    ik_model_digest: str = ""
 
     def __post_init__(self) -> None:
         F, P, W = self.frame_indices.shape[0], self.person_ids.shape[0], self.window_start.shape[0]
@@ -106,6 +119,13 @@ class PhysicsCheckpoints:
             check_array(
                 "PhysicsCheckpoints.reference_tol", self.reference_tol, (self.reference_values.shape[1],), "f"
             )
+        if (self.ik_qpos is None) != (self.ik_input_digest is None) or (self.ik_qpos is None) != (
+            self.ik_model_digest == ""
+        ):
+            raise ValueError("PhysicsCheckpoints: ik_qpos, ik_input_digest and ik_model_digest go together")
+        if self.ik_qpos is not None and self.ik_input_digest is not None:
+            check_array("PhysicsCheckpoints.ik_qpos", self.ik_qpos, (F, None), "f")
+            check_array("PhysicsCheckpoints.ik_input_digest", self.ik_input_digest, (F,), "u")
         check_array("PhysicsCheckpoints.input_digest", self.input_digest, (F,), "u")
         check_array("PhysicsCheckpoints.reference_digest", self.reference_digest, (F,), "u")
         check_array("PhysicsCheckpoints.sole_m", self.sole_m, (P,), "f")
@@ -120,6 +140,15 @@ class PhysicsCheckpoints:
             check_array(f"PhysicsCheckpoints.{name}", getattr(self, name), (W,), "iu")
         for name in ("window_residual", "window_reset"):
             check_array(f"PhysicsCheckpoints.{name}", getattr(self, name), (W,), "b")
+
+    def stored_ik(self) -> ReferenceIK | None:
+        """The stored inverse kinematics as the backend takes it (``reference_and_ik``'s
+        ``stored_ik``), or None when these checkpoints predate it."""
+        if self.ik_qpos is None or self.ik_input_digest is None:
+            return None
+        from pipeline.backends.mujoco.ik_reuse import ReferenceIK
+
+        return ReferenceIK(qpos=self.ik_qpos, input_digest=self.ik_input_digest, model_digest=self.ik_model_digest)
 
     def records(self) -> tuple[WindowRecord, ...]:
         """The windows as the backend's records (``optimise_bout``'s ``resume``)."""
@@ -388,9 +417,10 @@ def checkpoints_of(
     sol: BoutSolution,
     foot_mm: float,
     ref_values: tuple[np.ndarray, np.ndarray] | None = None,
+    ik: ReferenceIK | None = None,
 ) -> PhysicsCheckpoints:
     """The checkpoints of a finished run (``sol``: the multi-person bout solution;
-    ``ref_values``: ``reference_values`` of its reference)."""
+    ``ref_values``: ``reference_values`` of its reference; ``ik``: its inverse kinematics)."""
     recs = sol.records
     nq, nv, nu = sol.qpos.shape[1], sol.qvel.shape[1], sol.ctrl.shape[1]
     L = max((r.carry.shape[0] for r in recs), default=0)
@@ -424,4 +454,7 @@ def checkpoints_of(
         foot_site_offset_mm_mean=float(foot_mm),
         reference_values=None if ref_values is None else ref_values[0],
         reference_tol=None if ref_values is None else ref_values[1],
+        ik_qpos=None if ik is None else ik.qpos,
+        ik_input_digest=None if ik is None else ik.input_digest,
+        ik_model_digest="" if ik is None else ik.model_digest,
     )

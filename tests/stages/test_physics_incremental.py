@@ -12,6 +12,7 @@ servo schedule's spline carries a fading part of it back). A second edit moves t
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,8 +20,9 @@ import pytest
 pytest.importorskip("mujoco")
 
 from pipeline.backends.mujoco.physics import window_starts  # noqa: E402
+from pipeline.schema.base import load_npz, to_arrays  # noqa: E402
 from pipeline.stages.physics import PhysicsInputs, PhysicsOutput, run  # noqa: E402
-from pipeline.stages.physics_incremental import PhysicsPrevious, reference_reach  # noqa: E402
+from pipeline.stages.physics_incremental import PhysicsCheckpoints, PhysicsPrevious, reference_reach  # noqa: E402
 from tests.stages.test_physics import FAST, _facing_pair  # noqa: E402
 
 N_FRAMES = 60
@@ -78,6 +80,8 @@ def test_an_unchanged_input_reuses_every_window(runs: dict[str, PhysicsOutput]) 
     out = runs["unchanged"]
     assert out.stats["reused_frames"] == N_FRAMES and out.stats["replanned_from_frame"] == -1
     assert out.stats["first_changed_input_frame"] == N_FRAMES
+    assert out.stats["ik_reused_frames"] == N_FRAMES
+    assert out.stats["ik_incremental"] == f"reused every frame (0-{N_FRAMES - 1})"
     assert out.stats["windows"] == runs["first"].stats["windows"]
     assert out.stats["iterations"] == runs["first"].stats["iterations"]
     for name in ARRAYS:
@@ -88,6 +92,15 @@ def test_only_windows_reading_a_changed_frame_are_replanned(runs: dict[str, Phys
     out, first = runs["incremental"], runs["first"]
     st = out.stats
     assert st["first_changed_input_frame"] == EDIT_FRAME
+    # The inverse kinematics is solved from the edit on (the wrists are not feet: the planted
+    # feet's targets, which reach back, do not change); the frames before are the stored IK.
+    assert st["ik_reused_frames"] == EDIT_FRAME
+    assert st["ik_incremental"] == f"reused frames 0-{EDIT_FRAME - 1}, solved from frame {EDIT_FRAME}"
+    ik_new, ik_old = out.checkpoints, first.checkpoints
+    assert ik_new is not None and ik_old is not None
+    assert ik_new.ik_qpos is not None and ik_old.ik_qpos is not None
+    assert np.array_equal(ik_new.ik_qpos[:EDIT_FRAME], ik_old.ik_qpos[:EDIT_FRAME])
+    assert not np.array_equal(ik_new.ik_qpos[EDIT_FRAME:], ik_old.ik_qpos[EDIT_FRAME:])
     # The schedule's spline carries the change a few frames back beyond the tolerances:
     # fewer than the allowance a bit-for-bit comparison would need (``reference_reach``).
     assert st["first_changed_reference_frame_exact"] == EDIT_FRAME  # before the schedule
@@ -144,10 +157,24 @@ def test_a_change_within_the_tolerances_reuses_every_window(runs: dict[str, Phys
         assert np.array_equal(getattr(out.result, name), getattr(first.result, name)), name
 
 
-def test_old_checkpoints_without_reference_values_replan_and_say_why(runs: dict[str, PhysicsOutput]) -> None:
+def test_old_checkpoints_without_reference_values_replan_and_say_why(
+    runs: dict[str, PhysicsOutput], tmp_path: Path
+) -> None:
+    """Checkpoints written before the reference values and the inverse kinematics were
+    stored (as loaded from such a file): everything is planned and solved again."""
     first = runs["first"]
     assert first.checkpoints is not None
-    old = dataclasses.replace(first.checkpoints, reference_values=None, reference_tol=None)
+    dropped = dataclasses.replace(
+        first.checkpoints, reference_values=None, reference_tol=None, ik_qpos=None, ik_input_digest=None,
+        ik_model_digest="",
+    )  # fmt: skip
+    path = tmp_path / "checkpoints.npz"
+    later = ("reference_values", "reference_tol", "ik_qpos", "ik_input_digest", "ik_model_digest")
+    arrays = {k: v for k, v in to_arrays(dropped).items() if not k.endswith(later)}
+    assert len(arrays) == len(to_arrays(dropped)) - len(later)
+    np.savez(path, **arrays)  # type: ignore[arg-type]
+    old = load_npz(path, PhysicsCheckpoints)
+    assert old.stored_ik() is None and old.reference_values is None
     out = run(
         PhysicsInputs(_facing_pair(0.3, N_FRAMES), previous=PhysicsPrevious(first.result, first.mjcf, old)),
         dataclasses.replace(FAST, max_frames=0),
@@ -157,6 +184,10 @@ def test_old_checkpoints_without_reference_values_replan_and_say_why(runs: dict[
         == "full run: the previous run stored no reference values (older checkpoints)"
     )
     assert out.stats["reused_frames"] == 0
+    assert out.stats["ik_incremental"] == (
+        "solved every frame: the previous run stored no inverse kinematics (older checkpoints)"
+    )
+    assert out.stats["ik_reused_frames"] == 0
     for name in ARRAYS:  # planned from frame 0 on the same humanoids: the same as the first run
         assert np.array_equal(getattr(out.result, name), getattr(first.result, name)), name
 
@@ -166,6 +197,9 @@ def test_off_or_another_layout_runs_in_full(runs: dict[str, PhysicsOutput]) -> N
     prev = _previous(runs["first"])
     off = run(PhysicsInputs(kp, previous=prev), dataclasses.replace(FAST, incremental=False, max_frames=20))
     assert off.stats["incremental"] == "full run: incremental is off" and off.stats["reused_frames"] == 0
+    assert (
+        off.stats["ik_incremental"] == "solved every frame (full run)" and off.stats["ik_reused_frames"] == 0
+    )
     short = run(PhysicsInputs(kp, previous=prev), dataclasses.replace(FAST, max_frames=20))
     assert (
         short.stats["incremental"].startswith("full run: frames changed")

@@ -5,7 +5,8 @@ contact-consistent (planted feet held still and flat on the floor, overlapping a
 separated: ``separation``), and the servo targets with inverse-dynamics
 feed-forward (per substep: ``schedule``; ground reactions on the feet, what they
 cannot supply is the residual root wrench). The scene itself is ``scene``
-(``Scene`` and ``build_scene`` are re-exported here).
+(``Scene`` and ``build_scene`` are re-exported here). An earlier inverse kinematics is
+reused where its inputs are unchanged (``ik_reuse``, ``reference_and_ik``).
 """
 
 from __future__ import annotations
@@ -15,6 +16,12 @@ import numpy as np
 
 from pipeline.backends.mujoco.config import ReferenceConfig
 from pipeline.backends.mujoco.humanoid import SceneLayout
+from pipeline.backends.mujoco.ik_reuse import (
+    ReferenceIK,
+    ik_input_digests,
+    ik_model_digest,
+    reusable_ik_frames,
+)
 from pipeline.backends.mujoco.scene import Scene, build_scene
 from pipeline.backends.mujoco.schedule import contact_inverse_dynamics_point, foot_site_ids, servo_schedule
 from pipeline.backends.mujoco.separation import separate_persons, separate_reference
@@ -30,6 +37,7 @@ __all__ = [
     "lift_off_floor",
     "plant_feet",
     "planted_site_targets",
+    "reference_and_ik",
     "reference_velocity",
     "separate_persons",
     "separate_reference",
@@ -69,6 +77,7 @@ def inverse_kinematics(
     restart_tol_m: float = 0.05,
     posture_weight: float = 0.0,
     limit_active_set: bool = True,
+    prefix: np.ndarray | None = None,
 ) -> np.ndarray:
     """Per-frame damped least squares of sites onto targets, warm-started in time.
 
@@ -89,10 +98,19 @@ def inverse_kinematics(
     the step after the solve, and the joints that moved with it stay moved (a straight knee
     then leaves a flat-planted foot tilted toes down). Returns qpos (frames, nq), hinge
     angles clamped to their ranges.
+
+    Frame f depends on the inputs of frames 0..f only (the warm start; the first pose's
+    root comes from a person's first frame with targets). ``prefix`` (k, nq), 1 <= k <=
+    frames: this function's result for frames 0..k-1 from inputs equal to these there
+    (``reusable_ik_frames``): those rows are copied and the solve goes on from frame k,
+    bit for bit as if it had run from frame 0.
     """
     m, lay = scene.model, scene.layout
     d = mujoco.MjData(m)
     F, P, S = weight.shape
+    k0 = 0 if prefix is None else int(prefix.shape[0])
+    if prefix is not None and (prefix.ndim != 2 or not 1 <= k0 <= F or prefix.shape[1] != m.nq):
+        raise ValueError(f"inverse_kinematics: prefix has shape {prefix.shape}, expected (1..{F}, {m.nq})")
     feet = _foot_rest_heights(scene) if flat is not None else []
     jacr = np.zeros((3, m.nv))
     q = m.qpos0.copy()
@@ -171,7 +189,10 @@ def inverse_kinematics(
         err = np.linalg.norm(d.site_xpos[scene.site_ids] - targets[f], axis=-1)
         return np.where(weight[f] > 0, err, 0.0).max(axis=1)
 
-    for f in range(F):
+    if prefix is not None:
+        out[:k0] = prefix
+        q = out[k0 - 1].copy()
+    for f in range(k0, F):
         iterate(q, f, iters_first if f == 0 else iters, cold=f == 0)
         bad = [i for i, e in enumerate(site_errors(q, f)) if e > restart_tol_m]
         if bad and f > 0:
@@ -279,7 +300,33 @@ def build_reference(
     sole_m: np.ndarray | None = None,
     balance: ReferenceConfig | None = None,
 ) -> tuple[Reference, np.ndarray, np.ndarray]:
-    """IK reference + body-frame targets. Returns (reference, targets_world, weight).
+    """``reference_and_ik`` without a stored IK, its IK left out: (reference, targets_world, weight)."""
+    ref, targets, weight, _ = reference_and_ik(
+        scene, kp, person_rows, plant=plant, separate=separate, substeps=substeps, flat_feet=flat_feet,
+        sole_lift_m=sole_lift_m, ff_friction=ff_friction, ff_smooth_frames=ff_smooth_frames,
+        separation_clearance_m=separation_clearance_m, posture_weight=posture_weight, sole_m=sole_m, balance=balance,
+    )
+    return ref, targets, weight
+
+
+def reference_and_ik(
+    scene: Scene,
+    kp: Keypoints3D,
+    person_rows: list[int],
+    plant: bool = True,
+    separate: bool = True,
+    substeps: int = 0,
+    flat_feet: bool = False,
+    sole_lift_m: float = 0.0,
+    ff_friction: float = 0.3,
+    ff_smooth_frames: float = 0.0,
+    separation_clearance_m: float = 0.003,
+    posture_weight: float = 0.0,
+    sole_m: np.ndarray | None = None,
+    balance: ReferenceConfig | None = None,
+    stored_ik: ReferenceIK | None = None,
+) -> tuple[Reference, np.ndarray, np.ndarray, ReferenceIK]:
+    """IK reference + body-frame targets. Returns (reference, targets_world, weight, ik).
     ``sole_m``: (persons,) height of the foot keypoints above the sole (default: measured
     on ``kp``, ``sole_heights_m``).
 
@@ -298,16 +345,27 @@ def build_reference(
 
     ``balance``: a config whose ``balance`` is ``zmp`` moves each athlete's body above the
     planted feet after the IK (and before the separation) so that the zero-moment point
-    stays over them (``balance.balance_reference``; needs ``plant``); None or ``none``: not."""
+    stays over them (``balance.balance_reference``; needs ``plant``); None or ``none``: not.
+
+    ``stored_ik``: the ``ik`` of an earlier call (same scene and settings, e.g. the previous
+    run of the stage): its frames before the first whose IK inputs differ are copied
+    (``ik_reuse``), bit for bit what solving them again gives; ``ik.reused_frames`` says how
+    many, ``ik.why`` why none."""
     m, lay = scene.model, scene.layout
     contact: np.ndarray | None = None
     if plant:
         targets, weight, contact = planted_site_targets(scene, kp, person_rows, sole_m)
     else:
         targets, weight = site_targets(scene, kp, person_rows)
+    flat = contact if flat_feet else None
+    ik_inputs = ik_input_digests(targets, weight, flat)
+    ik_model = ik_model_digest(scene, flat is not None, sole_lift_m, posture_weight)
+    k, why = reusable_ik_frames(stored_ik, ik_inputs, ik_model, weight)
     qref = inverse_kinematics(
-        scene, targets, weight, flat=contact if flat_feet else None, sole_lift_m=sole_lift_m, posture_weight=posture_weight
+        scene, targets, weight, flat=flat, sole_lift_m=sole_lift_m, posture_weight=posture_weight,
+        prefix=stored_ik.qpos[:k] if stored_ik is not None and k > 0 else None,
     )
+    ik = ReferenceIK(qpos=qref.copy(), input_digest=ik_inputs, model_digest=ik_model, reused_frames=k, why=why)
     F, P, S = weight.shape
     if balance is not None and balance.balance != "none" and contact is not None:
         from pipeline.backends.mujoco.balance import balance_reference
@@ -337,7 +395,7 @@ def build_reference(
         site_ids=scene.site_ids, site_local_m=local, site_world_m=targets, site_weight=weight, qpos=qref, qvel=vref,
         ctrl=ctrl, root_torque_ff=root_torque, foot_contact=contact, schedule=schedule,
     )
-    return ref, targets, weight
+    return ref, targets, weight, ik
 
 
 def servo_feedforward(scene: Scene, qref: np.ndarray, vref: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
