@@ -7,9 +7,10 @@ prior (:mod:`pipeline.priors.build`). One clip becomes one athlete's motion in f
 1. :func:`clip_keypoints_dm`: key frames -> ``COCO17_FEET`` points of the DeepMimic
    character (its own proportions; y-up converted to z-up, floor at z = 0).
 2. :func:`loop_clip`: looped (or trimmed) to the bout length and resampled to its fps.
-   A looping clip (``"Loop": "wrap"``) continues each cycle from where the last one ended
-   (position and heading), as DeepMimic plays it; a one-shot clip (punch, kick) also
-   starts its next cycle there, cross-faded over ``BLEND_S``.
+   A looping clip (``"Loop": "wrap"``) starts each cycle on the foot that stands at the
+   end of the last one (turned and shifted to keep it in place), the rest of the pose
+   mismatch faded out over ``BLEND_S``; a one-shot clip (punch, kick) starts its next
+   cycle where the last one's pelvis and heading ended, cross-faded over ``BLEND_S``.
 3. :func:`retarget_to_body`: every segment keeps its direction and gets the length of a
    synthetic athlete's ``BodyDims``; the pelvis path is scaled by the leg-length ratio.
    The face and foot points are rigid offsets (``face_offsets``, ``foot_offsets``) in
@@ -99,6 +100,31 @@ def move_to(kp: np.ndarray, src: tuple[np.ndarray, float], dst: tuple[np.ndarray
     return out + np.r_[dst[0], 0.0]
 
 
+def _lower_foot(pose: np.ndarray) -> list[int]:
+    """Indices of the sole points (heel, big toe, small toe) and ankle of the lower foot of one pose (23, 3)."""
+    sides = [[J[f"{s}_{p}"] for p in ("heel", "big_toe", "small_toe", "ankle")] for s in _SIDES]
+    return min(sides, key=lambda idx: float(pose[idx[:3], 2].mean()))
+
+
+def _continue_cycle(kp: np.ndarray, last: np.ndarray, n_blend: int) -> np.ndarray:
+    """The looping clip ``kp`` (K, 23, 3) as the cycle after one that ended in pose ``last``
+    (23, 3): turned about z and shifted so that ``last``'s lower (planted) foot keeps its
+    place (least squares over its sole points and ankle), then the rest of the first pose's
+    mismatch with ``last`` faded out over ``n_blend`` key frames (a raised cosine), so the
+    cycle starts exactly at ``last`` and the planted foot does not jump."""
+    idx = _lower_foot(last)
+    p, q = kp[0, idx, :2], last[idx, :2]
+    pc, qc = p - p.mean(0), q - q.mean(0)
+    yaw = float(np.arctan2(np.sum(pc[:, 0] * qc[:, 1] - pc[:, 1] * qc[:, 0]), np.sum(pc * qc)))
+    R = _rot_z(yaw)
+    out = kp @ R.T
+    out[..., :2] += q.mean(0) - p.mean(0) @ R[:2, :2].T
+    n = min(n_blend, kp.shape[0] - 1)
+    fade = 0.5 + 0.5 * np.cos(np.pi * np.arange(n) / n)  # 1 -> 0
+    out[:n] += (last - out[0]) * fade[:, None, None]
+    return out
+
+
 def loop_clip(
     kp: np.ndarray, dt_s: float, loops: bool, n_frames: int, fps: float, start_s: float = 0.0
 ) -> np.ndarray:
@@ -112,11 +138,11 @@ def loop_clip(
     seq = kp.copy()
     prev = kp
     while (seq.shape[0] - 1) * dt_s < need_s + 2 * dt_s:
-        anchor = prev[-1] if loops else prev[n_key - n_blend]
-        nxt = move_to(kp, start_frame(kp[0]), start_frame(anchor))
         if loops:
+            nxt = _continue_cycle(kp, prev[-1], max(2, int(round(BLEND_S / dt_s))))
             seq = np.concatenate([seq, nxt[1:]])
         else:
+            nxt = move_to(kp, start_frame(kp[0]), start_frame(prev[n_key - n_blend]))
             w = 0.5 - 0.5 * np.cos(np.pi * (np.arange(n_blend) + 1) / (n_blend + 1))  # 0 -> 1
             head = seq[-n_blend:] * (1 - w[:, None, None]) + nxt[:n_blend] * w[:, None, None]
             seq = np.concatenate([seq[:-n_blend], head, nxt[n_blend:]])

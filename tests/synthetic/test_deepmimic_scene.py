@@ -107,6 +107,26 @@ def test_looping_continues_without_jumps(clip: str) -> None:
     assert np.linalg.norm(pelvis[-1] - pelvis[0]) > 1.5 * one  # the cycles add up, they do not restart
 
 
+def test_the_planted_foot_keeps_its_place_across_a_cycle_boundary() -> None:
+    """The walk's next cycle is placed on the foot that stands at the boundary: aligning the
+    pelvis and heading instead left that foot 6-15 cm off, a 4-5 m/s jump in one frame."""
+    kp, dt, loops = clip_keypoints_dm("walk")
+    assert loops
+    clip_s = (kp.shape[0] - 1) * dt
+    n = int(3.5 * clip_s * FPS)
+    x = loop_clip(kp, dt, loops, n, FPS)
+    speed, height = [], []
+    for side in ("left", "right"):
+        sole = x[:, [J[f"{side}_{p}"] for p in ("heel", "big_toe", "small_toe")]]
+        speed.append(np.linalg.norm(np.diff(sole.mean(axis=1)[:, :2], axis=0), axis=-1) * FPS)
+        height.append(sole[1:, :, 2].min(axis=1))
+    lower = np.where(height[0] <= height[1], speed[0], speed[1])  # the standing foot's speed
+    bounds = [int(round(k * clip_s * FPS)) for k in (1, 2, 3)]
+    at_bounds = max(float(lower[b - 3 : b + 3].max()) for b in bounds)
+    assert np.median(lower) < 0.05  # a walk: one foot stands still most of the time
+    assert at_bounds < 1.0, at_bounds  # measured 0.64 m/s; 4.2-4.6 with the pelvis alignment
+
+
 def test_scene_uses_the_bouts_cameras_and_bodies(scene: MocapScene) -> None:
     bout = make_bout(SyntheticConfig(seed=0, n_frames=N))
     np.testing.assert_array_equal(scene.rig.K, bout.rig.K)
