@@ -147,6 +147,10 @@ class ViewEvidenceConfig:
     enabled: bool = False
     """Look for such punches when the stage gets the 2D tracks and their association (off by
     default; docs/design/analytics.md says why)."""
+    unmeasured_only: bool = True
+    """Take such punches only where the raw triangulation did not measure the fist's way out
+    (under 60 % of its frames triangulated: the wrist was hidden in a view); where it did, its
+    measured speed has judged the excursion (``PunchConfig.min_measured_speed_mps``)."""
     min_excursion_3d_m: float = 0.12
     """Smallest 3D excursion of the fist from its guard that is looked at (m, > 0; the punch
     rules' own threshold is ``PunchConfig.min_excursion_m``)."""

@@ -14,8 +14,9 @@ the speed is the central difference of the scaled wrist. ``view_signals`` gives 
 analysed frames; ``window_evidence`` the largest of them over one excursion, per view.
 
 ``view_punches`` turns this into punches: a 3D excursion of the fist of at least
-``ViewEvidenceConfig.min_excursion_3d_m`` that passes every punch rule but those on speed, and
-that one view shows far and fast enough (``view_failed``). ``view_peak_speed`` bounds a punch's
+``ViewEvidenceConfig.min_excursion_3d_m`` that passes every punch rule but those on speed, whose
+way out the raw triangulation did not measure (``ViewEvidenceConfig.unmeasured_only``), and that
+one view shows far and fast enough (``view_failed``). ``view_peak_speed`` bounds a punch's
 peak speed from below where the raw triangulation could not measure it.
 """
 
@@ -230,7 +231,7 @@ def view_peak_speed(sig: ViewSignals, start: int, peak: int) -> float | None:
     return float(step.max()) if step.size and step.max() > 0 else None
 
 
-VIEW_RULES: tuple[str, ...] = ("new", "whole", "form", "views")
+VIEW_RULES: tuple[str, ...] = ("new", "whole", "unmeasured", "form", "views")
 """The checks a weak 3D excursion passes to count as a punch seen in 2D (``view_failed``)."""
 MOTION_ONLY: tuple[str, ...] = ("out_speed", "peak_speed")
 """Punch rules (``punches.RULES``) about the fist's speed, which the 2D evidence replaces."""
@@ -246,13 +247,17 @@ def view_failed(
 ) -> str | None:
     """The first check of ``VIEW_RULES`` the 3D candidate ``c`` fails, None for a punch:
     ``new``, no punch of ``found`` (the same fist's) overlaps it; ``whole``, it lies inside the
-    clip (an excursion cut by the first or last frame has no way out or back to judge); ``form``, it passes every punch
+    clip (an excursion cut by the first or last frame has no way out or back to judge);
+    ``unmeasured``, with ``vcfg.unmeasured_only``, the raw triangulation did not measure its way
+    out (``c.measured_mps`` is NaN: under 60 % of those frames triangulated); ``form``, it passes every punch
     rule but those on speed (``MOTION_ONLY``); ``views``, one view shows the wrist at least
     ``vcfg.view_min_excursion_m`` from its guard and at least ``vcfg.view_min_speed_mps`` fast on the way out."""
     if any(overlaps(c.start, c.end, d.start, d.end) for d in found):
         return "new"
     if c.start <= 0 or c.end >= sig.ok.shape[1] - 1:
         return "whole"
+    if vcfg.unmeasured_only and np.isfinite(c.measured_mps):
+        return "unmeasured"
     # The speed rules are the views' to judge, the excursion was (``min_excursion_3d_m``).
     loose = replace(c, out_speed_mps=np.inf, peak_speed_mps=np.inf, measured_mps=np.inf, excursion_m=np.inf)
     if rule_failed(loose, cfg, fps) is not None:
@@ -271,9 +276,11 @@ def view_punches(
     cfg: PunchConfig,
     vcfg: ViewEvidenceConfig,
     clinch: np.ndarray | None = None,
+    raw: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> list[Detection]:
     """The punches of one fist that the 3D shows too weak or too slow and a view shows fast
-    (``view_failed``), in time order; ``found``: the punches already detected on that fist.
+    (``view_failed``), in time order; ``found``: the punches already detected on that fist;
+    ``raw``: the fist's raw wrist (``punches.candidates``), where a candidate's speed is measured.
     Rows index the analysed frames of ``body``, ``h`` and ``sig`` alike."""
     if sig.ok.shape[1] != body.n_frames:
         raise ValueError(
@@ -281,7 +288,7 @@ def view_punches(
         )
     relaxed = replace(cfg, min_excursion_m=min(cfg.min_excursion_m, vcfg.min_excursion_3d_m))
     out: list[Detection] = []
-    for c in candidates(body, h, relaxed, clinch):
+    for c in candidates(body, h, relaxed, clinch, raw):
         if view_failed(c, sig, found + out, cfg, vcfg, body.fps) is not None:
             continue
         score = np.clip(c.excursion_m / cfg.min_excursion_m, 0.0, 1.0)

@@ -185,8 +185,8 @@ def _punches_of(me: Body, opp: Body | None, R: np.ndarray, r_ok: np.ndarray, sta
             found = sorted(found + flattened_punches(motion, hm, me, h, raw.get(hand), cfg.punch, clinch),
                            key=lambda d: d.peak)  # fmt: skip
         if hand in views and cfg.views.enabled:
-            found = sorted(found + evidence2d.view_punches(me, h, views[hand], found, cfg.punch, cfg.views, clinch),
-                           key=lambda d: d.peak)  # fmt: skip
+            seen = evidence2d.view_punches(me, h, views[hand], found, cfg.punch, cfg.views, clinch, raw.get(hand))
+            found = sorted(found + seen, key=lambda d: d.peak)
         for d in found:
             speed = d.peak_speed_mps
             if cfg.punch.speed_source == "raw":
