@@ -17,7 +17,7 @@ from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.synthetic import combos
 from pipeline.synthetic.choreo import Choreography, make_choreography
 from pipeline.synthetic.config import SyntheticConfig
-from pipeline.synthetic.motion import boxer_arms, boxer_trunk, punch_peak_speeds
+from pipeline.synthetic.motion import boxer_arms, boxer_trunk, parry_contacts, punch_peak_speeds
 from pipeline.synthetic.occlusion import capsules, occluded
 from pipeline.synthetic.render2d import render_tracks
 from pipeline.synthetic.rig import make_rig
@@ -89,6 +89,15 @@ def _boxers(
     """Joints (F, 2, 23, 3), foot contacts (F, 2, 2) and per-punch peak wrist speeds."""
     trunks = [boxer_trunk(ch, i, bodies[i], fps) for i in range(2)]
     joints = [boxer_arms(ch, i, bodies[i], trunks[i], trunks[1 - i], bodies[1 - i]) for i in range(2)]
+    if any(p.parry is not None for p in ch.punches):
+        # Parries meet the punching glove where the first pass put it: until the contact a
+        # punch's own arm does not depend on the opponent's arms.
+        first = joints
+        contacts = parry_contacts(ch, first, trunks, bodies)
+        joints = [
+            boxer_arms(ch, i, bodies[i], trunks[i], trunks[1 - i], bodies[1 - i], first[1 - i], contacts)
+            for i in range(2)
+        ]
     speeds = np.zeros(len(ch.punches))
     for i in range(2):
         idx = [k for k, p in enumerate(ch.punches) if p.person == i]
@@ -134,10 +143,16 @@ def _planted_joints(contact: np.ndarray) -> np.ndarray:
 def make_bout(cfg: SyntheticConfig = SyntheticConfig()) -> SyntheticBout:
     """Generate the bout described by ``cfg`` (deterministic: same config -> same arrays)."""
     ss = np.random.SeedSequence(cfg.seed)
-    # A fifth child stream for the varied script: the first four are the same with or without it.
-    rng_body, rng_choreo, rng_rig, rng_render, rng_vary = (np.random.default_rng(s) for s in ss.spawn(5))
+    # A fifth child stream for the varied script and a sixth for its parries: the streams
+    # before each are the same with or without it.
+    streams = (np.random.default_rng(s) for s in ss.spawn(6))
+    rng_body, rng_choreo, rng_rig, rng_render, rng_vary, rng_parry = streams
     bodies = [make_body(h, a, rng_body) for h, a in zip(BOXER_HEIGHTS_M, BOXER_ARM_RATIOS, strict=True)]
-    vary = functools.partial(combos.vary, rng=rng_vary) if cfg.variety else None
+    vary = (
+        functools.partial(combos.vary, rng=rng_vary, parry_prob=cfg.parry_prob, rng_parry=rng_parry)
+        if cfg.variety
+        else None
+    )
     ch = make_choreography(cfg.n_frames, cfg.fps, cfg.clinch, rng_choreo, vary)
     ch, boxers, contact, speeds = _calibrated_boxers(ch, bodies, cfg.fps)
     boxers = separate_persons(boxers, _planted_joints(contact))

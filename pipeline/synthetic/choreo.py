@@ -20,7 +20,7 @@ from pipeline.synthetic.curves import keyframes, minjerk
 PunchKind = Literal[
     "jab", "cross", "lead_hook", "rear_hook", "lead_uppercut", "rear_uppercut", "body_jab", "body_cross"
 ]
-PunchAim = Literal["legacy", "land", "block", "slip", "short"]
+PunchAim = Literal["legacy", "land", "block", "slip", "short", "parry"]
 """How a punch's strike point is placed. ``legacy``: the original script (straights at the
 head where it was when the punch started, stopped 0.12 m short; the lead hook on a fixed
 arc). The others (``pipeline.synthetic.combos``, placed by ``pipeline.synthetic.strikes``):
@@ -57,6 +57,30 @@ NOMINAL_PATH_M: dict[str, float] = {
 
 
 @dataclass(frozen=True)
+class Parry:
+    """How the defender parries a punch (``Punch.aim == "parry"``): his glove on the side the
+    punch arrives on sweeps across its line and meets its glove on the way out, which is then
+    pushed sideways and misses (``pipeline.synthetic.motion``)."""
+
+    at_frac: float
+    """Fraction of the punch's outward stroke (time), in (0, 1), from which on the gloves meet
+    as soon as the defender can reach the punch (``motion.parry_contacts``)."""
+    sweep_m: float
+    """Length (m) of the parrying glove's sideways slap (``strikes.parry_sweep``)."""
+    sweep_s: float
+    """Duration (s) of the slap; the glove then goes back to the guard."""
+    deflect_m: float
+    """Sideways displacement (m) of the punching glove at the strike, built up from the contact
+    (``strikes.parried_stroke``)."""
+
+    def __post_init__(self) -> None:
+        if not (0.0 < self.at_frac < 1.0 and self.sweep_m > 0 and self.sweep_s > 0 and self.deflect_m > 0):
+            raise ValueError(
+                f"Parry needs at_frac in (0, 1) and positive sweep_m, sweep_s, deflect_m; got {self}"
+            )
+
+
+@dataclass(frozen=True)
 class Punch:
     """One punch: the fist leaves the guard at ``t0_s``, reaches the strike point after
     ``out_s`` (minimum jerk), holds ``hold_s`` and returns in ``back_s``."""
@@ -75,12 +99,16 @@ class Punch:
     """``aim="short"``: how far before contact the glove stops (metres)."""
     counter: bool = False
     """Thrown in answer to the opponent's combination."""
+    parry: Parry | None = None
+    """``aim="parry"``: how the defender parries it (None otherwise)."""
     back_by_s: float = float("inf")
     """Time (s) by which the fist must be back in guard: the same hand's next punch leaves
     then. A duration that would end later (the speed calibration stretches punches) is
     scaled down, ``out_s`` and ``back_s`` alike, to end exactly then."""
 
     def __post_init__(self) -> None:
+        if (self.aim == "parry") != (self.parry is not None):
+            raise ValueError(f"Punch {self.kind} at {self.t0_s:.3f} s: aim={self.aim!r} with parry={self.parry}")
         if self.end_s > self.back_by_s + 1e-9:
             room = self.back_by_s - self.t0_s - self.hold_s
             if room <= 0.0:
@@ -109,6 +137,14 @@ class Punch:
     @property
     def end_s(self) -> float:
         return self.t0_s + self.out_s + self.hold_s + self.back_s
+
+    @property
+    def parry_s(self) -> float:
+        """Earliest time of the parry's contact (s, ``Parry.at_frac``); ``ValueError`` when the
+        punch is not parried."""
+        if self.parry is None:
+            raise ValueError(f"Punch {self.kind} at {self.t0_s:.3f} s is not parried (aim={self.aim!r})")
+        return self.t0_s + self.parry.at_frac * self.out_s
 
     def profile(self, t_s: np.ndarray) -> np.ndarray:
         """Extension 0 (guard) -> 1 (strike) -> 0 over time (C2)."""

@@ -12,7 +12,11 @@ exchange, close and range phase gets instead, from its own random stream:
   (a ``Slip`` of the defender timed on the strike), or fall short (the defender pulls
   his head back, or a body shot stops short);
 - often a feint first (the fist starts and comes back, ``Punch.amplitude`` < 1) and
-  sometimes a counter by the defender (``Punch.counter``).
+  sometimes a counter by the defender (``Punch.counter``);
+- with ``SyntheticConfig.parry_prob`` > 0, a jab or cross aimed to be blocked, in a phase
+  thrown at straight-punch range, is parried instead with that probability (``Punch.parry``:
+  the defender's glove slaps it sideways on its way out), drawn from a stream of its own so
+  that nothing else changes.
 
 The clinch phases, the circling and the drift of the pair are left as the base script
 drew them (the base draws come first, from the base stream), so a bout differs from its
@@ -26,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.synthetic.choreo import NOMINAL_PATH_M, REAR_KINDS, Punch, PunchAim, PunchKind, Slip
+from pipeline.synthetic.choreo import NOMINAL_PATH_M, REAR_KINDS, Parry, Punch, PunchAim, PunchKind, Slip
 
 LEAD_KINDS: tuple[PunchKind, ...] = ("jab", "lead_hook", "lead_uppercut", "body_jab")
 REAR_KIND_LIST: tuple[PunchKind, ...] = ("cross", "rear_hook", "rear_uppercut", "body_cross")
@@ -54,6 +58,31 @@ AIMS: dict[str, tuple[tuple[PunchAim, ...], tuple[float, ...]]] = {
     "body": (("land", "short"), (0.65, 0.35)),
 }
 """Intended outcomes per family of punch, with their probabilities."""
+PARRIED_KINDS = frozenset({"jab", "cross"})
+"""Punch kinds a ``block`` aim may turn into a parry (``SyntheticConfig.parry_prob``)."""
+PARRY_AT_FRAC = (0.4, 0.5)
+"""Range of the fraction of the outward stroke at which the parrying glove meets the punch."""
+PARRY_SWEEP_M = (0.12, 0.2)
+"""Range of the parrying glove's sideways slap (m)."""
+PARRY_SWEEP_S = (0.08, 0.1)
+"""Range of the slap's duration (s)."""
+PARRY_DEFLECT_M = (0.16, 0.22)
+"""Range of how far sideways the parried glove is pushed (m), reached at the strike."""
+PARRY_LIFT = 0.2
+"""The parried glove also rises by this fraction of ``Parry.deflect_m``: it rides up over the
+defender's other glove and shoulder instead of into them."""
+PARRY_CONTACT_AT = 0.8
+"""Fraction of the parrying slap's duration at which it meets the punch: 94 % of its length,
+at 40 % of its peak speed (the glove stops on the punch a centimetre further and goes back
+instead of cutting into the arm behind it)."""
+PARRY_IN_S = 0.1
+"""A parrying glove moves from the guard to the start of its slap in this long (s)."""
+PARRY_BACK_S = 0.15
+"""... and from the end of its slap back to the guard in this long (s)."""
+PARRY_FREE_MARGIN_S = 0.06
+"""A block becomes a parry only when the defender throws nothing, parries nothing else and
+does not slip or duck within this (s) of the parry's span (the speed calibration moves
+punches by a few hundredths of a second)."""
 
 
 def family(kind: str) -> str:
@@ -71,6 +100,8 @@ class _Plan:
     punches: list[Punch]
     slips: list[Slip]
     d_keys: list[tuple[float, float]]
+    close: bool = False
+    """The punches are thrown at ``CLOSE_ATTACK_M`` (a hook or an uppercut among them)."""
 
 
 def _speed_punch(
@@ -191,16 +222,61 @@ def _phase(kind: str, a: float, b: float, next_kind: str | None, rng: np.random.
         keys.append((max(b - 0.1, keys[-1][0] + 0.05), d_exit))
     else:
         keys.append((b - 0.1, d_exit))
-    return _Plan(punches, [], keys)
+    return _Plan(punches, [], keys, close)
+
+
+def parries(punches: list[Punch], slips: list[Slip], prob: float, rng: np.random.Generator | None) -> list[Punch]:
+    """``punches`` with each jab or cross aimed ``block`` turned into a parry with probability
+    ``prob`` (its shape drawn from ``rng``, one uniform per candidate punch), unless the
+    defender is busy then: punching (a counter would tangle the arms), parrying the previous
+    punch, or slipping or ducking (a parry is made standing; ``PARRY_FREE_MARGIN_S``).
+    Unchanged, and ``rng`` untouched, when ``prob`` is 0."""
+    if prob <= 0.0:
+        return punches
+    if rng is None:
+        raise ValueError(f"combos.parries: parry_prob={prob} needs a random stream")
+    out: list[Punch] = []
+    for p in punches:
+        if p.aim != "block" or p.kind not in PARRIED_KINDS or p.feint or rng.uniform() >= prob:
+            out.append(p)
+            continue
+        parry = Parry(
+            at_frac=float(rng.uniform(*PARRY_AT_FRAC)),
+            sweep_m=float(rng.uniform(*PARRY_SWEEP_M)),
+            sweep_s=float(rng.uniform(*PARRY_SWEEP_S)),
+            deflect_m=float(rng.uniform(*PARRY_DEFLECT_M)),
+        )
+        q = dataclasses.replace(p, aim="parry", parry=parry)
+        lo, hi = parry_span(q)
+        lo, hi = lo - PARRY_FREE_MARGIN_S, hi + PARRY_FREE_MARGIN_S
+        busy = any(o.person != p.person and o.t0_s < hi and lo < o.end_s for o in punches)
+        busy |= any(v.person != p.person and v.t0_s < hi and lo < v.t0_s + v.duration_s for v in slips)
+        busy |= any(o.parry is not None and o.person == p.person and parry_span(o)[1] > lo for o in out)
+        out.append(p if busy else q)
+    return out
+
+
+def parry_span(p: Punch, contact_s: float | None = None) -> tuple[float, float]:
+    """(start, end) in seconds of the parrying glove's move against the parried punch ``p``
+    with its contact at ``contact_s`` (default ``p.parry_s``): from the guard, the slap
+    (``Parry.sweep_s``, the contact ``PARRY_CONTACT_AT`` through it), back to the guard."""
+    if p.parry is None:
+        raise ValueError(f"parry_span: punch {p.kind} at {p.t0_s:.3f} s is not parried")
+    t_c = p.parry_s if contact_s is None else contact_s
+    before, after = PARRY_CONTACT_AT * p.parry.sweep_s, (1.0 - PARRY_CONTACT_AT) * p.parry.sweep_s
+    return t_c - before - PARRY_IN_S, t_c + after + PARRY_BACK_S
 
 
 def vary(
     phases: list[tuple[str, float, float]],
     base_d_keys: list[tuple[float, float]],
     rng: np.random.Generator,
+    parry_prob: float = 0.0,
+    rng_parry: np.random.Generator | None = None,
 ) -> tuple[list[tuple[float, float]], list[Punch], list[Slip]]:
     """The varied script: (distance keys, punches, slips). Clinch phases keep the base
-    distance keys; every other phase is re-scripted (see the module docstring)."""
+    distance keys; every other phase is re-scripted (see the module docstring). Parries
+    (``parries``) draw from ``rng_parry`` only, so ``parry_prob`` changes no other choice."""
     clinch = [(a, b) for k, a, b in phases if k == "clinch"]
     d_keys = [(t, d) for t, d in base_d_keys if t == 0.0 or any(a <= t <= b for a, b in clinch)]
     punches: list[Punch] = []
@@ -210,7 +286,9 @@ def vary(
             continue
         nxt = phases[i + 1][0] if i + 1 < len(phases) else None
         plan = _phase(kind, a, b, nxt, rng)
-        punches += _evasions(plan.punches, slips, rng)
+        evaded = _evasions(plan.punches, slips, rng)
+        # Parries at straight-punch range only: at close range the gloves start in each other's way.
+        punches += evaded if plan.close else parries(evaded, slips, parry_prob, rng_parry)
         d_keys += plan.d_keys
     return d_keys, _back_in_time(punches), slips
 

@@ -50,6 +50,11 @@ class SyntheticConfig:
     blocked, slipped or ducked, short), feints and counters. From its own random stream:
     phases, clinches, circling and drift stay those of the same seed without it."""
 
+    parry_prob: float = 0.0
+    """Probability in [0, 1] that a jab or cross the varied script aims to be blocked is
+    parried instead (the defender's glove slaps it sideways on its way out; needs
+    ``variety``). From its own random stream: every other choice stays that of 0."""
+
     image_size_wh: tuple[int, int] = (1280, 720)
     """Image width and height in pixels (same for every camera)."""
 
@@ -67,6 +72,12 @@ class SyntheticConfig:
         if len(self.image_size_wh) != 2 or min(self.image_size_wh) < 64:
             raise ValueError(
                 f"SyntheticConfig.image_size_wh must be two sizes >= 64 px, got {self.image_size_wh}"
+            )
+        if not 0.0 <= self.parry_prob <= 1.0:
+            raise ValueError(f"SyntheticConfig.parry_prob must be in [0, 1], got {self.parry_prob}")
+        if self.parry_prob > 0.0 and not self.variety:
+            raise ValueError(
+                f"SyntheticConfig.parry_prob={self.parry_prob} needs variety=True (the base script has no blocks to parry)"
             )
         if self.seed < 0:
             raise ValueError(f"SyntheticConfig.seed must be >= 0, got {self.seed}")

@@ -14,15 +14,20 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 
 from pipeline.synthetic.choreo import CLINCH_DISTANCE_M, Choreography, Punch
-from pipeline.synthetic.combos import family
+from pipeline.synthetic.combos import PARRY_BACK_S, PARRY_IN_S, PARRY_LIFT, family, parry_span
 from pipeline.synthetic.curves import apply, bump, minjerk, rot_z, rot_zyx, softmin
 from pipeline.synthetic.footwork import FeetTrack, StepParams, plan_feet
 from pipeline.synthetic.skeleton import BodyDims, J, face_offsets, foot_offsets, two_bone_ik
 from pipeline.synthetic.strikes import (
+    GLOVE_PAST_WRIST,
+    R_GLOVE_M,
     frame_at,
     glove_centre,
     guard_weight,
     hook_offset,
+    parried_stroke,
+    parry_geometry,
+    parry_sweep,
     plan_strike,
     uppercut_offset,
     wrist_for_glove,
@@ -59,6 +64,17 @@ OPEN_GUARD_M = {"head": np.array([-0.08, 0.12, -0.2]), "body": np.array([-0.05, 
 """Where a defender's fists go (facing frame, y outwards, 1.75 m boxer) while a punch
 scripted to land (or to be slipped) reaches his head (down and out of its way) or his
 body (up and out: the elbows leave the ribs)."""
+PARRY_REACH = 0.9
+"""A parry meets the punch where the parrying glove is within this fraction of the
+defender's arm (shoulder to glove centre) from his shoulder (the arm IK follows exactly up
+to 0.92 of it)."""
+PARRY_OVERLAP_M = 0.05
+"""The parrying glove is aimed this far into the punching glove at the contact (the bodies'
+separation then leaves them touching)."""
+PARRY_AHEAD_RAD = -0.3
+"""At a parry's contact the parrying glove touches the punching glove from the side, turned
+this far (rad) from the sideways direction towards the defender (negative: towards the
+attacker), so that a frame later the punching glove is past it, not running into it."""
 
 
 @dataclass(frozen=True)
@@ -234,9 +250,21 @@ def hook_path(arc_frac: np.ndarray) -> np.ndarray:
 
 
 def boxer_arms(
-    ch: Choreography, person: int, body: BodyDims, me: Trunk, opp: Trunk, opp_body: BodyDims
+    ch: Choreography,
+    person: int,
+    body: BodyDims,
+    me: Trunk,
+    opp: Trunk,
+    opp_body: BodyDims,
+    opp_arms: np.ndarray | None = None,
+    contacts: dict[int, int] | None = None,
 ) -> np.ndarray:
-    """Joints (F, 23, 3) of a boxer with arms placed (guard, punches, clinch grips)."""
+    """Joints (F, 23, 3) of a boxer with arms placed (guard, punches, clinch grips).
+
+    Parries (``Punch.parry``) need ``contacts`` (row of ``ch.punches`` -> contact frame,
+    ``parry_contacts``) and ``opp_arms`` (F, 23, 3), the opponent's joints with his arms
+    placed: without them parried punches fly unparried and the defender's gloves stay in
+    guard (the first of ``make_bout``'s two passes)."""
     t = ch.t_s
     joints = me.joints.copy()
     s = body.scale
@@ -254,13 +282,14 @@ def boxer_arms(
         target = me.neck + apply(me.R_guard, guard)
         pole = apply(me.R_guard, np.array([-0.2, 0.35 * out, -1.0]))
         shoulder = joints[:, J[f"{side}_shoulder"]]
-        punches: list[Punch] = [p for p in ch.punches if p.person == person and p.hand == side]
+        punches = [(k, p) for k, p in enumerate(ch.punches) if p.person == person and p.hand == side]
         aimed: list[tuple[np.ndarray, np.ndarray, int]] = []  # (weight (F,), glove centre (3,), frame)
-        for p in punches:
+        for k, p in punches:
             prof = p.profile(t)[:, None]
             fp = frame_at(t, p.t0_s + p.out_s)
             if p.aim != "legacy":
-                target, pole = _aimed_punch(p, prof, t, body, me, opp, target, pole, aimed)
+                f_c = None if contacts is None else contacts.get(k)
+                target, pole = _aimed_punch(p, prof, t, body, me, opp, target, pole, aimed, f_c)
             elif p.kind == "lead_hook":
                 # Horizontal arc in the facing frame, travelled at arc-length rate ``prof``.
                 local = hook_path(prof[:, 0]) - HOOK_CTRL[0]
@@ -277,7 +306,8 @@ def boxer_arms(
         # lead hand over his shoulder and the rear hand under his arm, so the arms pass
         # each other on the sides they grip from (``separate_persons`` keeps a limb on the
         # side of another limb it first meets).
-        target = _guard_moves(ch, person, side, body, me, opp, target, aimed)
+        parried = (opp_arms, contacts) if opp_arms is not None and contacts is not None else None
+        target = _guard_moves(ch, person, side, body, me, opp, target, aimed, parried)
         detour = 4.0 * w * (1 - w) * apply(me.R_guard, np.array([0.0, 0.3 * out, 0.15 * out]) * s)
         target = (1 - w) * target + w * grips[side] + detour
         pole = (1 - w) * pole + w * apply(me.R_guard, np.array([0.0, out, -0.3]))
@@ -302,8 +332,10 @@ def _aimed_punch(
     target: np.ndarray,
     pole: np.ndarray,
     aimed: list[tuple[np.ndarray, np.ndarray, int]],
+    contact: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Wrist target and elbow pole with an aimed punch (``pipeline.synthetic.strikes``) added."""
+    """Wrist target and elbow pole with an aimed punch (``pipeline.synthetic.strikes``) added;
+    a parried one is turned aside from the frame ``contact`` on (unparried without it)."""
     st = plan_strike(p, t, me.joints, me.R_guard, opp.joints)
     wrist = wrist_for_glove(st.glove, st.u, body.forearm_m)
     fam = family(p.kind)
@@ -318,6 +350,11 @@ def _aimed_punch(
         else:
             local = uppercut_offset(prof[:, 0], start, end, body.scale)
         target = target + apply(me.R_guard, local)
+    elif p.parry is not None and contact is not None:  # turned aside (no glove correction: it misses)
+        n, _ = parry_geometry(p, t, me.joints, opp.joints)
+        reach, side = parried_stroke(t, p, float(t[contact]))
+        shift = p.parry.deflect_m * (n + np.array([0.0, 0.0, PARRY_LIFT]))
+        return target + reach[:, None] * (wrist - target) + side[:, None] * shift, pole
     else:
         target = target + prof * (wrist - target)
     if not p.feint:
@@ -334,14 +371,21 @@ def _guard_moves(
     opp: Trunk,
     target: np.ndarray,
     aimed: list[tuple[np.ndarray, np.ndarray, int]],
+    parried: tuple[np.ndarray, dict[int, int]] | None,
 ) -> np.ndarray:
     """The defender's ``side`` fist answering the opponent's aimed punches: onto the contact
     point of a punch scripted to be blocked (the hand on the side it arrives on: opposite
-    the punching hand), out of the way of one scripted to land or to be slipped (both hands)."""
+    the punching hand), out of the way of one scripted to land or to be slipped (both hands),
+    across the way of one scripted to be parried (that same hand; ``_parry_move``, given
+    ``parried`` = (the opponent's joints with arms, the contact frames)."""
     t = ch.t_s
     out = 1.0 if side == "left" else -1.0
-    for p in ch.punches:
-        if p.person == person or p.aim not in ("block", "land", "slip") or p.feint:
+    for k, p in enumerate(ch.punches):
+        if p.person == person or p.aim not in ("block", "land", "slip", "parry") or p.feint:
+            continue
+        if p.aim == "parry":
+            if side != p.hand and parried is not None and k in parried[1]:
+                target = _parry_move(p, t, body, me, opp, parried[0], parried[1][k], side, target, aimed)
             continue
         weight = guard_weight(t, p)
         if p.aim in ("land", "slip"):
@@ -357,6 +401,69 @@ def _guard_moves(
         target = target + weight[:, None] * (wrist_for_glove(spot, d, body.forearm_m) - target)
         aimed.append((weight, spot, st.frame))
     return target
+
+
+def _parry_move(
+    p: Punch,
+    t: np.ndarray,
+    body: BodyDims,
+    me: Trunk,
+    opp: Trunk,
+    opp_arms: np.ndarray,
+    f_c: int,
+    side: str,
+    target: np.ndarray,
+    aimed: list[tuple[np.ndarray, np.ndarray, int]],
+) -> np.ndarray:
+    """Wrist target of the defender's ``side`` glove parrying ``p``: from the guard to the start
+    of a sideways slap of ``Parry.sweep_m`` along the direction the punch is pushed, onto the
+    punching glove (``opp_arms``) at the contact frame ``f_c``, back to the guard."""
+    if p.parry is None:
+        raise ValueError(f"_parry_move: punch {p.kind} at {p.t0_s:.3f} s is not parried")
+    n, fwd = parry_geometry(p, t, opp.joints, me.joints)
+    t_c = float(t[f_c])
+    sweep = parry_sweep(t, p, t_c)
+    contact = _parry_point(glove_centre(opp_arms, p.hand)[f_c], n, fwd)
+    glove = contact[None] + (sweep * p.parry.sweep_m)[:, None] * n[None]
+    lo, hi = parry_span(p, t_c)
+    weight = minjerk((t - lo) / PARRY_IN_S) - minjerk((t - hi + PARRY_BACK_S) / PARRY_BACK_S)
+    d = glove - me.joints[:, J[f"{side}_shoulder"]]
+    wrist = wrist_for_glove(glove, d / np.linalg.norm(d, axis=1, keepdims=True), body.forearm_m)
+    aimed.append((weight, contact, f_c))
+    return target + weight[:, None] * (wrist - target)
+
+
+def _parry_point(punch_glove: np.ndarray, n: np.ndarray, fwd: np.ndarray) -> np.ndarray:
+    """(..., 3) where the parrying glove's centre meets the punching glove's ``punch_glove``
+    (``PARRY_AHEAD_RAD``, ``PARRY_OVERLAP_M``; ``n`` and ``fwd`` from ``parry_geometry``)."""
+    side_dir = -n * np.cos(PARRY_AHEAD_RAD) + fwd * np.sin(PARRY_AHEAD_RAD)
+    return punch_glove + (2.0 * R_GLOVE_M - PARRY_OVERLAP_M) * side_dir
+
+
+def parry_contacts(
+    ch: Choreography, joints: list[np.ndarray], trunks: list[Trunk], bodies: list[BodyDims]
+) -> dict[int, int]:
+    """Row of ``ch.punches`` -> contact frame of every parried punch, from the first pass
+    (``joints``: both boxers' (F, 23, 3), punches unparried): the first frame from
+    ``Parry.at_frac`` of its way out on at which the parrying glove would be within
+    ``PARRY_REACH`` of the defender's arm, two frames before the strike at the latest; where
+    none is, the frame before the strike at which it comes nearest (it may fall short)."""
+    t = ch.t_s
+    out: dict[int, int] = {}
+    for k, p in enumerate(ch.punches):
+        if p.parry is None:
+            continue
+        a, d = p.person, 1 - p.person
+        side = "right" if p.hand == "left" else "left"
+        n, fwd = parry_geometry(p, t, trunks[a].joints, trunks[d].joints)
+        start, first, peak = frame_at(t, p.t0_s), frame_at(t, p.parry_s), frame_at(t, p.peak_s)
+        rows = np.arange(start + 1, max(peak, start + 2))
+        point = _parry_point(glove_centre(joints[a][rows], p.hand), n, fwd)
+        arm = bodies[d].upper_arm_m + bodies[d].forearm_m * (1.0 + GLOVE_PAST_WRIST)
+        ratio = np.linalg.norm(point - trunks[d].joints[rows, J[f"{side}_shoulder"]], axis=1) / arm
+        ok = rows[(ratio <= PARRY_REACH) & (rows >= first) & (rows <= peak - 2)]
+        out[k] = int(ok[0]) if ok.size else int(rows[np.argmin(ratio)])
+    return out
 
 
 def punch_peak_speeds(

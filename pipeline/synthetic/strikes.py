@@ -10,6 +10,10 @@ then sent to that contact point (``land``), two glove radii further out (``block
 defender's glove takes the contact point), ``shortfall_m`` further out (``short``), or
 at where the head was before the defender started to evade (``slip``, and ``short`` at
 the head: the defender pulls back); a short body shot stops ``shortfall_m`` before contact.
+A parried punch (``parry``) is aimed to land; ``parry_geometry`` gives the direction its
+glove is pushed at the parry's contact: horizontal, across the line from the punching
+shoulder to the defender's head at the punch's start, towards the defender's inside (the
+glove of his that parries sweeps that way).
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ from pipeline.evaluate.glove_contact import body_point, glove_volume, region_vol
 from pipeline.geometry.segments import segment_distance
 from pipeline.schema.joints import COCO17_FEET
 from pipeline.synthetic.choreo import Punch
-from pipeline.synthetic.combos import family
+from pipeline.synthetic.combos import PARRY_CONTACT_AT, family
 from pipeline.synthetic.curves import apply, minjerk
 from pipeline.synthetic.skeleton import J
 
@@ -35,6 +39,9 @@ SLIP_AIM_BEFORE_S = 0.3
 LAND_THROUGH_M = 0.02
 """A punch scripted to land is aimed this far through the contact point (the bodies'
 separation then leaves it touching)."""
+PARRY_KEEP = 0.3
+"""A parried punch (aimed at the head) travels this fraction of the rest of its way out
+after the parry's contact: the slap costs the arm its reach as well as its line."""
 
 
 @dataclass(frozen=True)
@@ -99,8 +106,53 @@ def plan_strike(
     u = u / np.linalg.norm(u)
     s_c = _contact_distance(target, u, opp_joints[f_aim], region)
     short = p.shortfall_m if region == "body" else 0.0
-    extra = {"land": -LAND_THROUGH_M, "block": 2.0 * R_GLOVE_M - LAND_THROUGH_M, "short": short, "slip": 0.0}[p.aim]
+    extra = {
+        "land": -LAND_THROUGH_M, "parry": 0.0, "block": 2.0 * R_GLOVE_M - LAND_THROUGH_M,
+        "short": short, "slip": 0.0,
+    }[p.aim]  # fmt: skip
     return Strike(f, target, u, s_c, target - u * (s_c + extra))
+
+
+def parry_geometry(p: Punch, t_s: np.ndarray, att_joints: np.ndarray, def_joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(``n`` (3,), ``fwd`` (3,)) of the parried punch ``p`` (``att_joints`` / ``def_joints``:
+    (F, 23, 3) trunk joints of the attacker and the defender). ``fwd`` is the horizontal unit
+    direction from the punching shoulder to the defender's head at the punch's start; ``n``
+    the horizontal unit normal to it the punching glove is pushed along (the attacker's right
+    for a left-hand punch, his left for a right-hand one)."""
+    f0 = frame_at(t_s, p.t0_s)
+    head = body_point(def_joints[f0], "mid:left_ear+right_ear", COCO17_FEET)
+    line = head - att_joints[f0, J[f"{p.hand}_shoulder"]]
+    line[2] = 0.0
+    fwd = line / np.linalg.norm(line)
+    left = np.cross(np.array([0.0, 0.0, 1.0]), fwd)
+    return (-left if p.hand == "left" else left), fwd
+
+
+def parried_stroke(t_s: np.ndarray, p: Punch, t_contact_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(F,) profiles of the parried punch ``p`` on the clock ``t_s``, contact at ``t_contact_s``:
+    ``reach`` 0 (guard) -> strike -> 0, its ``Punch.profile`` until the contact and then only
+    ``PARRY_KEEP`` of the rest of the way out; ``side`` 0 -> 1 -> 0, the sideways push, in
+    step with the rest of the way out from the contact (held, back with the fist). The glove
+    is thus turned aside at the contact, without slowing down before it."""
+    if p.parry is None:
+        raise ValueError(f"parried_stroke: punch {p.kind} at {p.t0_s:.3f} s is not parried")
+    out = minjerk((t_s - p.t0_s) / p.out_s)
+    back = minjerk((t_s - p.t0_s - p.out_s - p.hold_s) / p.back_s)
+    out_c = float(minjerk(np.array((t_contact_s - p.t0_s) / p.out_s)))
+    past = np.clip((out - out_c) / max(1.0 - out_c, 1e-6), 0.0, 1.0)
+    reach_out = np.minimum(out, out_c) + PARRY_KEEP * (1.0 - out_c) * past
+    end = out_c + PARRY_KEEP * (1.0 - out_c)
+    return reach_out - end * back, past * (1.0 - back)
+
+
+def parry_sweep(t_s: np.ndarray, p: Punch, t_contact_s: float) -> np.ndarray:
+    """(F,) the parrying glove's slap against ``p`` on the clock ``t_s``: a minimum-jerk ramp
+    over ``Parry.sweep_s`` in units of ``Parry.sweep_m``, shifted to 0 at the contact
+    ``t_contact_s``, which is ``PARRY_CONTACT_AT`` of the way through it in time."""
+    if p.parry is None:
+        raise ValueError(f"parry_sweep: punch {p.kind} at {p.t0_s:.3f} s is not parried")
+    at = np.array(PARRY_CONTACT_AT)
+    return minjerk((t_s - t_contact_s) / p.parry.sweep_s + at) - minjerk(at)
 
 
 def wrist_for_glove(glove: np.ndarray, u: np.ndarray, forearm_m: float) -> np.ndarray:

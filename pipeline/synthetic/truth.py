@@ -22,6 +22,16 @@ Every scripted punch (feints apart) becomes a labelled punch:
   that, and where the bodies disagree (a slipped punch that grazes the guard) the contact
   on the bodies wins.
 
+Parries (``SyntheticConfig.parry_prob``): a jab or cross scripted to be parried has intent
+``parry`` and its outcome from the contact, as every punch: its glove is pushed sideways and
+stops short, clear of the head and trunk, so ``missed``, or ``blocked`` where it still
+touches the defender's gloves or arms around the strike (the strike a frame or two after the
+parry's contact, or the glove brushing his other glove). The parry itself is a row of
+``parry_*`` when the bodies show it: the defender's glove on the side the punch arrives on
+within ``CONTACT_TOL_M`` of the punching glove or forearm between the punch's start and its
+strike; its frame is the first such frame (the contact). A parry whose glove fell short
+(out of the defender's reach) has intent ``parry`` and no row.
+
 Feints, evasions (slips: sideways, ducks: down; with the punch they answer) and the clinch
 frames (the script's clinch grip weight >= 0.5) are recorded too. None of this comes from
 the analytics stage.
@@ -34,18 +44,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.evaluate.glove_contact import glove_gaps
+from pipeline.evaluate.physics_metrics import CapsuleProxy
+from pipeline.geometry.segments import segment_distance
 from pipeline.schema.analytics import EVADE_KINDS, HANDS, OUTCOMES, PUNCH_TYPES, TARGETS
 from pipeline.schema.base import check_array
 from pipeline.schema.joints import COCO17_FEET
 from pipeline.synthetic.choreo import Choreography, Punch
-from pipeline.synthetic.strikes import frame_at, glove_centre
+from pipeline.synthetic.strikes import R_GLOVE_M, frame_at, glove_centre
 
 CONTACT_TOL_M = 0.025
 """A glove within this of a volume touches it (the bodies' separation leaves touching
 volumes 2-20 mm apart: its smoothed rounds aim 2 cm out)."""
 CLINCH_GRIP_MIN = 0.5
 """Frames whose scripted clinch grip weight is at least this are clinch frames."""
-INTENTS: tuple[str, ...] = ("legacy", "land", "block", "slip", "short")
+INTENTS: tuple[str, ...] = ("legacy", "land", "block", "slip", "short", "parry")
+R_FOREARM_M = next(r for a, b, r in CapsuleProxy().segments if (a, b) == ("left_elbow", "left_wrist"))
+"""Radius (m) of ``CapsuleProxy``'s forearm capsule."""
 FULL_EXTENSION = 0.95
 """Shoulder-to-wrist distance, as a fraction of the arm's length, of a straight arm (the
 arm IK follows targets within 0.92 of the arm and saturates towards 0.985 beyond; the
@@ -101,6 +115,9 @@ class BoutTruth:
             (evades,) slips and ducks (``EVADE_KINDS``); evade_punch: (evades,) row of
             the punch evaded (-1 when none was thrown at that moment).
         clinch: (frames,) bool clinch frames.
+        parry_person / parry_hand / parry_punch / parry_frame: (parries,) the defender, the
+            glove he parries with (``HANDS``), the row of the punch parried and the frame of
+            the contact (module docstring).
     """
 
     fps: float
@@ -127,6 +144,10 @@ class BoutTruth:
     evade_end_frame: np.ndarray
     evade_punch: np.ndarray
     clinch: np.ndarray
+    parry_person: np.ndarray
+    parry_hand: np.ndarray
+    parry_punch: np.ndarray
+    parry_frame: np.ndarray
 
     def __post_init__(self) -> None:
         n = self.punch_person.shape[0] if isinstance(self.punch_person, np.ndarray) else -1
@@ -153,6 +174,14 @@ class BoutTruth:
         for name in ("evade_person", "evade_start_frame", "evade_peak_frame", "evade_end_frame", "evade_punch"):
             check_array(f"BoutTruth.{name}", getattr(self, name), (m,), "iu")
         check_array("BoutTruth.clinch", self.clinch, (None,), "b")
+        q = self.parry_person.shape[0] if isinstance(self.parry_person, np.ndarray) else -1
+        hands = check_array("BoutTruth.parry_hand", self.parry_hand, (q,), "U")
+        if set(hands.tolist()) - set(HANDS):
+            raise ValueError(f"BoutTruth.parry_hand: unknown values {sorted(set(hands.tolist()) - set(HANDS))}")
+        for name in ("parry_person", "parry_punch", "parry_frame"):
+            check_array(f"BoutTruth.{name}", getattr(self, name), (q,), "iu")
+        if q and not (0 <= self.parry_punch.min() and self.parry_punch.max() < n):
+            raise ValueError(f"BoutTruth.parry_punch: rows {self.parry_punch.tolist()} outside 0..{n - 1}")
         if not (np.isfinite(self.fps) and self.fps > 0):
             raise ValueError(f"BoutTruth.fps must be positive, got {self.fps}")
 
@@ -179,6 +208,20 @@ def contact_outcome(xyz_m: np.ndarray, person: int, hand: str, frames: np.ndarra
     return "missed", "none"
 
 
+def parry_contact(xyz_m: np.ndarray, person: int, hand: str, side: str, frames: np.ndarray) -> int:
+    """First of ``frames`` at which the other athlete's ``side`` glove is within ``CONTACT_TOL_M``
+    of ``person``'s ``hand`` glove or forearm (joints ``xyz_m`` (frames, 2, 23, 3)); -1 if none."""
+    x = xyz_m[frames]
+    g = glove_centre(x[:, 1 - person], side)
+    punch = glove_centre(x[:, person], hand)
+    el = x[:, person, COCO17_FEET.index(f"{hand}_elbow")]
+    wr = x[:, person, COCO17_FEET.index(f"{hand}_wrist")]
+    to_glove = np.linalg.norm(g - punch, axis=1) - 2.0 * R_GLOVE_M
+    to_arm = segment_distance(g, g, el, wr) - R_GLOVE_M - R_FOREARM_M
+    hit = np.flatnonzero(np.minimum(to_glove, to_arm) <= CONTACT_TOL_M)
+    return int(frames[hit[0]]) if hit.size else -1
+
+
 def record_truth(ch: Choreography, xyz_m: np.ndarray, peak_speed_mps: np.ndarray, fps: float) -> BoutTruth:
     """Label the scripted events of ``ch`` on its ground-truth joints ``xyz_m`` (frames, 2, 23, 3).
 
@@ -190,6 +233,7 @@ def record_truth(ch: Choreography, xyz_m: np.ndarray, peak_speed_mps: np.ndarray
     t, n_f = ch.t_s, xyz_m.shape[0]
     rows: list[dict] = []
     feints: list[dict] = []
+    parries: list[dict] = []
     for p, v in zip(ch.punches, peak_speed_mps, strict=True):
         fr = {"start": frame_at(t, p.t0_s), "peak": frame_at(t, p.peak_s), "end": frame_at(t, p.end_s)}
         if p.feint:
@@ -198,6 +242,11 @@ def record_truth(ch: Choreography, xyz_m: np.ndarray, peak_speed_mps: np.ndarray
         fr["peak"] = strike_frame(xyz_m, p.person, p.hand, fr["start"], fr["peak"])
         win = np.arange(max(fr["peak"] - 1, 0), min(fr["peak"] + 3, n_f))
         outcome, _ = contact_outcome(xyz_m, p.person, p.hand, win)
+        if p.aim == "parry":
+            side = "right" if p.hand == "left" else "left"
+            c = parry_contact(xyz_m, p.person, p.hand, side, np.arange(fr["start"], fr["peak"] + 1))
+            if c >= 0:
+                parries.append({"person": 1 - p.person, "hand": side, "punch": len(rows), "frame": c})
         rows.append(
             {
                 "person": p.person, "hand": p.hand, "type": punch_type(p), **fr, "speed": float(v),
@@ -242,4 +291,6 @@ def record_truth(ch: Choreography, xyz_m: np.ndarray, peak_speed_mps: np.ndarray
         evade_start_frame=col(evades, "start", np.int64), evade_peak_frame=col(evades, "peak", np.int64),
         evade_end_frame=col(evades, "end", np.int64), evade_punch=col(evades, "punch", np.int64),
         clinch=w >= CLINCH_GRIP_MIN,
+        parry_person=col(parries, "person", np.int64), parry_hand=col(parries, "hand", str),
+        parry_punch=col(parries, "punch", np.int64), parry_frame=col(parries, "frame", np.int64),
     )  # fmt: skip
