@@ -51,7 +51,7 @@ POSE2SIM_STAGE = "fit"
 """The Pose2Sim row needs the stages up to this one (physics is left out, as for the synthetic rows)."""
 COUNT_KEYS = ("gt_punches", "detected", "matched", "type_correct", "outcome_correct", "speed_err_sum",
               "feints", "feint_hits", "clinch_tp", "clinch_gt", "clinch_pred", "frames",
-              "gt_blocks", "blocks_detected", "blocks_matched")  # fmt: skip
+              "gt_blocks", "blocks_detected", "blocks_matched", "gt_parries", "parries_detected", "parries_matched")  # fmt: skip
 
 
 def _fit_keypoints(bout: Any, sources: tuple[str, ...]) -> dict[str, Keypoints3D]:
@@ -204,16 +204,19 @@ def run_bench(
     cache_dir: str = "",
     pose2sim: str = FOOTAGE,
     views: bool | None = None,
+    parry_prob: float = 0.0,
 ) -> list[dict[str, Any]]:
     """Rows: one per (3D source, camera count) over ``seeds``, then the Pose2Sim row.
 
     ``sources``: comma-separated among ``fit``, ``filtered``, ``gt``. ``cache_dir``: keep
     the 3D results there and reuse them (for tuning; they are keyed by seed, cameras,
-    frames and source only, so empty it when the generator changes). ``pose2sim``: the
+    frames, ``parry_prob`` and source only, so empty it when the generator changes). ``pose2sim``: the
     session of the last row: ``"footage"`` = ``bench footage``'s, run up to the fit when
     missing or stale; a session folder; "" skips the row (``pose2sim_session``). ``views``:
     None keeps the analyze stage's default for the 2D evidence of flattened punches, True /
-    False turns it on / off (``ViewEvidenceConfig.enabled``).
+    False turns it on / off (``ViewEvidenceConfig.enabled``). ``parry_prob``: the bouts'
+    ``SyntheticConfig.parry_prob`` (0 to 1; > 0 scripts parries, scored in the parry columns,
+    and makes other bouts than the default seeds' usual ones).
     """
     from pipeline.stages.analyze import AnalyzeInputs
     from pipeline.stages.analyze import run as analyze
@@ -233,11 +236,12 @@ def run_bench(
     for n_cams in cams:
         for seed in seeds:
             t0 = time.perf_counter()
-            bout = make_bout(SyntheticConfig(seed=int(seed), n_frames=int(n_frames), n_cameras=n_cams, variety=True))
+            bout = make_bout(SyntheticConfig(seed=int(seed), n_frames=int(n_frames), n_cameras=n_cams, variety=True,
+                                             parry_prob=float(parry_prob)))  # fmt: skip
             made: dict[str, Keypoints3D] = {}
             tri: dict[str, Keypoints3D] = {}
             for src in ("raw", "filtered", *[w for w in wanted if w != "filtered"]):
-                key = f"kp_s{seed}_c{n_cams}_f{n_frames}_{src}"
+                key = f"kp_s{seed}_c{n_cams}_f{n_frames}{f'_pp{float(parry_prob):g}' if parry_prob else ''}_{src}"
 
                 def make(src: str = src, made: dict[str, Keypoints3D] = made, bout: Any = bout) -> Keypoints3D:
                     if src not in made:  # the triangulation alone unless the fit is asked for
@@ -271,7 +275,7 @@ def run_bench(
             {"data": f"synthetic ({src})", "cameras": n_cams, "seeds": ",".join(str(s) for s in seeds),
              "frames": tot["frames"], "gt_punches": tot["gt_punches"], "detected": tot["detected"],
              "matched": tot["matched"], **rates(tot), "feints": tot["feints"], "feint_hits": tot["feint_hits"],
-             "gt_blocks": tot["gt_blocks"],
+             "gt_blocks": tot["gt_blocks"], "gt_parries": tot["gt_parries"],
              "false_per_min": false / minutes if minutes else float("nan")}  # fmt: skip
         )
     if p2s_dir is not None:
@@ -293,6 +297,8 @@ def print_table(rows: list[dict[str, Any]]) -> None:
         ("speed_err_pct", "speed err %", "{:.1f}"), ("speed_err_max_pct", "max speed err %", "{:.1f}"),
         ("clinch_f1", "clinch F1", "{:.3f}"), ("gt_blocks", "blocks", "{}"),
         ("block_precision", "block precision", "{:.3f}"), ("block_recall", "block recall", "{:.3f}"),
+        ("gt_parries", "parries", "{}"), ("parry_precision", "parry precision", "{:.3f}"),
+        ("parry_recall", "parry recall", "{:.3f}"),
         ("feint_hits", "feints as punches", "{}"),
         ("false_per_min", "false punches/min", "{:.1f}"),
     ]  # fmt: skip
@@ -300,7 +306,8 @@ def print_table(rows: list[dict[str, Any]]) -> None:
         title="bench analytics: synthetic bouts with varied combinations (GT identities), and the Pose2Sim sample",
         caption="targets: precision/recall >= 0.95, type and outcome accuracy >= 90 %, speed error <= 10 %, "
         "clinch F1 >= 0.9, <= 1 false punch/min without punches; punches matched by strike frame +-3, same athlete and hand; "
-        "blocks: the defender's block events against the choreography's blocked punches (strikes +-3)",
+        "blocks: the defender's block events against the choreography's blocked punches (strikes +-3); "
+        "parries (bouts with parry_prob > 0): the defender's parry events against the scripted parries (strikes +-3)",
     )
     for _, title, _ in cols:
         table.add_column(title, justify="right")

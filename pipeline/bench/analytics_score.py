@@ -12,7 +12,8 @@ punch whose glove stops on the other athlete's arms ``blocked`` (``truth.contact
 the ground-truth bodies). Each such punch is a ground-truth block by the other athlete. A
 detected ``block`` event matches one when it is the same defender's and the punch it answers
 strikes within ``tol_frames`` of the ground-truth punch's strike, one-to-one, closest first.
-The ground truth has no parries (none is choreographed): they are not scored.
+A parried punch (``SyntheticConfig.parry_prob``) is not a ground-truth block even when its
+glove ends on the other guard: parries are scored on their own (``analytics_parry``).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.bench.analytics_parry import parry_counts, parry_rates
 from pipeline.schema.analytics import BoutEvents
 from pipeline.synthetic.truth import BoutTruth
 
@@ -40,8 +42,9 @@ def match_punches(truth: BoutTruth, events: BoutEvents, tol_frames: int = 3) -> 
 
 def match_blocks(truth: BoutTruth, events: BoutEvents, tol_frames: int = 3) -> list[tuple[int, int]]:
     """(truth punch row, event defence row) pairs: the truth punch was blocked, the event is a
-    ``block`` by the other athlete against a punch whose strike is within ``tol_frames``."""
-    gt = np.flatnonzero(truth.punch_outcome == "blocked")
+    ``block`` by the other athlete against a punch whose strike is within ``tol_frames``
+    (parried punches excluded)."""
+    gt = _truth_blocks(truth)
     det = np.flatnonzero(events.evade_kind == "block")
     cands = []
     for i in gt.tolist():
@@ -52,6 +55,13 @@ def match_blocks(truth: BoutTruth, events: BoutEvents, tol_frames: int = 3) -> l
             if d <= tol_frames:
                 cands.append((d, i, j))
     return _one_to_one(cands)
+
+
+def _truth_blocks(truth: BoutTruth) -> np.ndarray:
+    """Rows of the ground truth's blocked punches that were not parried."""
+    blocked = truth.punch_outcome == "blocked"
+    blocked[np.asarray(truth.parry_punch, dtype=np.int64)] = False
+    return np.flatnonzero(blocked)
 
 
 def _one_to_one(cands: list[tuple[int, int, int]]) -> list[tuple[int, int]]:
@@ -112,17 +122,18 @@ def score(truth: BoutTruth, events: BoutEvents, tol_frames: int = 3) -> dict[str
         "clinch_gt": int(truth.clinch.sum()),
         "clinch_pred": int(pred.sum()),
         "frames": int(n_f),
-        "gt_blocks": int(np.sum(truth.punch_outcome == "blocked")),
+        "gt_blocks": int(_truth_blocks(truth).size),
         "blocks_detected": int(np.sum(events.evade_kind == "block")),
         "blocks_matched": len(match_blocks(truth, events, tol_frames)),
+        **parry_counts(truth, events, tol_frames),
         "confusion_type": [(str(truth.punch_type[i]), str(events.punch_type[j])) for i, j in pairs],
         "confusion_outcome": [(str(truth.punch_outcome[i]), str(events.punch_outcome[j])) for i, j in pairs],
     }
 
 
 def rates(counts: dict[str, Any]) -> dict[str, float]:
-    """Precision, recall, accuracies (%), mean speed error (%), clinch F1 and block precision /
-    recall of summed counts."""
+    """Precision, recall, accuracies (%), mean speed error (%), clinch F1, and block and parry
+    precision / recall of summed counts."""
     m = counts["matched"]
     nan = float("nan")
     cp, cg, ct = counts["clinch_pred"], counts["clinch_gt"], counts["clinch_tp"]
@@ -136,4 +147,5 @@ def rates(counts: dict[str, Any]) -> dict[str, float]:
         "clinch_f1": 2 * ct / (cp + cg) if cp + cg else 1.0,
         "block_precision": counts["blocks_matched"] / counts["blocks_detected"] if counts.get("blocks_detected") else nan,
         "block_recall": counts["blocks_matched"] / counts["gt_blocks"] if counts.get("gt_blocks") else nan,
+        **(parry_rates(counts) if "gt_parries" in counts else {}),
     }

@@ -3,6 +3,8 @@ blocked punches (ground-truth labels from contact on the ground-truth bodies).""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from pipeline.bench.analytics_score import match_blocks, rates, score
@@ -51,3 +53,24 @@ def test_block_precision_and_recall() -> None:
     assert match_blocks(tr, _events(tr, [])) == [] and np.isnan(
         rates(score(tr, _events(tr, [])))["block_precision"]
     )
+
+
+def test_a_parried_punch_is_scored_as_a_parry_not_as_a_block() -> None:
+    tr = make_bout(SyntheticConfig(seed=1, n_frames=300, variety=True, bystander=False)).truth
+    blocked = np.flatnonzero(tr.punch_outcome == "blocked").tolist()
+    i = blocked[0]
+    d = 1 - int(tr.punch_person[i])
+    parried = dataclasses.replace(
+        tr, parry_person=np.array([d]), parry_hand=np.array(["left"]), parry_punch=np.array([i]),
+        parry_frame=np.array([int(tr.punch_peak_frame[i]) - 2]),
+    )  # fmt: skip
+    right = [(1 - int(tr.punch_person[k]), k) for k in blocked]
+    s = score(parried, _events(parried, right))
+    assert s["gt_blocks"] == len(blocked) - 1 and s["blocks_matched"] == len(blocked) - 1  # the parried one left out
+    assert s["gt_parries"] == 1 and s["parries_detected"] == 0 and np.isnan(rates(s)["parry_precision"])
+    ev = _events(parried, [*right[1:], (d, i)])
+    kinds = ev.evade_kind.copy()
+    kinds[-1] = "parry"  # the defender's parry of punch i
+    ev = BoutEvents(**{**ev.__dict__, "evade_kind": kinds})
+    r = rates(score(parried, ev))
+    assert r["parry_precision"] == r["parry_recall"] == 1.0 and r["block_recall"] == 1.0
