@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.bench.matching import one_to_one
 from pipeline.schema.analytics import BoutEvents
 from pipeline.synthetic.truth import BoutTruth
 
@@ -34,15 +35,7 @@ def match_parries(truth: BoutTruth, events: BoutEvents, tol_frames: int = 3) -> 
             d = abs(strike - int(events.punch_peak_frame[events.evade_punch[j]]))
             if d <= tol_frames:
                 cands.append((d, i, j))
-    used_t: set[int] = set()
-    used_e: set[int] = set()
-    pairs = []
-    for _, i, j in sorted(cands):
-        if i not in used_t and j not in used_e:
-            used_t.add(i)
-            used_e.add(j)
-            pairs.append((i, j))
-    return sorted(pairs)
+    return one_to_one(cands)
 
 
 def parry_counts(truth: BoutTruth, events: BoutEvents, tol_frames: int = 3) -> dict[str, int]:

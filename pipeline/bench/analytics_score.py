@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.bench.analytics_parry import parry_counts, parry_rates
+from pipeline.bench.matching import one_to_one
 from pipeline.schema.analytics import BoutEvents
 from pipeline.synthetic.truth import BoutTruth
 
@@ -37,7 +38,7 @@ def match_punches(truth: BoutTruth, events: BoutEvents, tol_frames: int = 3) -> 
             d = abs(int(truth.punch_peak_frame[i]) - int(events.punch_peak_frame[j]))
             if d <= tol_frames:
                 cands.append((d, i, j))
-    return _one_to_one(cands)
+    return one_to_one(cands)
 
 
 def match_blocks(truth: BoutTruth, events: BoutEvents, tol_frames: int = 3) -> list[tuple[int, int]]:
@@ -54,7 +55,7 @@ def match_blocks(truth: BoutTruth, events: BoutEvents, tol_frames: int = 3) -> l
             d = abs(int(truth.punch_peak_frame[i]) - int(events.punch_peak_frame[events.evade_punch[j]]))
             if d <= tol_frames:
                 cands.append((d, i, j))
-    return _one_to_one(cands)
+    return one_to_one(cands)
 
 
 def _truth_blocks(truth: BoutTruth) -> np.ndarray:
@@ -62,20 +63,6 @@ def _truth_blocks(truth: BoutTruth) -> np.ndarray:
     blocked = truth.punch_outcome == "blocked"
     blocked[np.asarray(truth.parry_punch, dtype=np.int64)] = False
     return np.flatnonzero(blocked)
-
-
-def _one_to_one(cands: list[tuple[int, int, int]]) -> list[tuple[int, int]]:
-    """Greedy one-to-one matching of (distance, truth row, event row) candidates, nearest first;
-    the pairs sorted by truth row."""
-    used_t: set[int] = set()
-    used_e: set[int] = set()
-    pairs = []
-    for _, i, j in sorted(cands):
-        if i not in used_t and j not in used_e:
-            used_t.add(i)
-            used_e.add(j)
-            pairs.append((i, j))
-    return sorted(pairs)
 
 
 def clinch_mask(events: BoutEvents, n_frames: int) -> np.ndarray:

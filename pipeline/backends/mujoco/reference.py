@@ -11,6 +11,8 @@ reused where its inputs are unchanged (``ik_reuse``, ``reference_and_ik``).
 
 from __future__ import annotations
 
+from typing import Any
+
 import mujoco
 import numpy as np
 
@@ -285,27 +287,13 @@ def planted_site_targets(
 
 
 def build_reference(
-    scene: Scene,
-    kp: Keypoints3D,
-    person_rows: list[int],
-    plant: bool = True,
-    separate: bool = True,
-    substeps: int = 0,
-    flat_feet: bool = False,
-    sole_lift_m: float = 0.0,
-    ff_friction: float = 0.3,
-    ff_smooth_frames: float = 0.0,
-    separation_clearance_m: float = 0.003,
-    posture_weight: float = 0.0,
-    sole_m: np.ndarray | None = None,
-    balance: ReferenceConfig | None = None,
+    scene: Scene, kp: Keypoints3D, person_rows: list[int], **options: Any
 ) -> tuple[Reference, np.ndarray, np.ndarray]:
-    """``reference_and_ik`` without a stored IK, its IK left out: (reference, targets_world, weight)."""
-    ref, targets, weight, _ = reference_and_ik(
-        scene, kp, person_rows, plant=plant, separate=separate, substeps=substeps, flat_feet=flat_feet,
-        sole_lift_m=sole_lift_m, ff_friction=ff_friction, ff_smooth_frames=ff_smooth_frames,
-        separation_clearance_m=separation_clearance_m, posture_weight=posture_weight, sole_m=sole_m, balance=balance,
-    )
+    """``reference_and_ik`` (same keyword options) with no stored IK and its IK left out:
+    (reference, targets_world, weight)."""
+    if "stored_ik" in options:
+        raise TypeError("build_reference: stored_ik is reference_and_ik's; call that to reuse an IK")
+    ref, targets, weight, _ = reference_and_ik(scene, kp, person_rows, **options)
     return ref, targets, weight
 
 
