@@ -26,6 +26,9 @@ from server.models import Bout, JobCreate, UserCreate
 log = logging.getLogger(__name__)
 DEFAULT_USERS: tuple[tuple[str, str], ...] = (("coach", "coach"), ("annotator", "annotator"), ("admin", "admin"))
 """(user name, role) created on the first start; also the order their tokens are printed in."""
+WORKER_NICENESS = 10
+"""How far below the server's the job workers' CPU priority is (Unix niceness increment, 0-19):
+on a small machine a running pipeline job leaves the API and the pages responsive."""
 
 ROLE_LABELS: dict[str, str] = {
     "coach": "watch bouts (read-only)",
@@ -117,8 +120,20 @@ def _die_with_parent() -> None:
         log.debug("PR_SET_PDEATHSIG unavailable; workers outlive a killed server")
 
 
+def _lower_priority(increment: int) -> None:
+    """Raise this process's Unix niceness by ``increment`` (0-19); a platform without ``nice``
+    or a refusal leaves it as it is, with a warning."""
+    if increment <= 0 or not hasattr(os, "nice"):
+        return
+    try:
+        os.nice(increment)
+    except OSError as e:
+        log.warning("could not lower the job worker's CPU priority: %s", e)
+
+
 def _worker_entry(home: str, executor: str, ray_address: str | None) -> None:
     _die_with_parent()
+    _lower_priority(WORKER_NICENESS)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s worker %(name)s: %(message)s")
     os.environ["CORNERMAN_HOME"] = home
     from server.jobs.worker import run_worker

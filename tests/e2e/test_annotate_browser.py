@@ -25,7 +25,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.e2e.test_browser import CHROMIUM, CHROMIUM_ARGS, _free_port
+from tests.e2e.test_browser import CHROMIUM, CHROMIUM_ARGS, _free_port, _wait_jobs_done
 from tests.live_server import stop_server, wait_until_healthy
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.timeout(300)]
@@ -294,6 +294,8 @@ def test_coach_sees_no_edit_controls_and_cannot_edit(served: dict) -> None:
             "person_b": 1, "part_b": "head"}, "rerun": False})
         assert r.status_code == 201, r.text
         n_before = len(api.get(f"/sessions/{sid}/annotations/history").json())
+        # The other tests' page edits queue re-runs; on 2 cores the coach's page load could wait on them.
+        _wait_jobs_done(api, sid, timeout_s=900, min_jobs=0)
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         try:

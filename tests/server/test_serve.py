@@ -4,6 +4,7 @@ printed only once the API answers, one per role, coach first."""
 from __future__ import annotations
 
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -17,7 +18,7 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 from pipeline.cli.main import app
-from server.cli import check_port, free_port, print_links
+from server.cli import WORKER_NICENESS, check_port, free_port, print_links
 
 runner = CliRunner()
 
@@ -87,6 +88,15 @@ def test_serve_prints_the_links_once_the_api_answers(tmp_path: Path) -> None:
         assert log.index("Uvicorn running on") < log.index("cornerman server ready") < log.index("/login")
         roles = [ln.split()[0] for ln in log.splitlines() if " token cm_" in ln]
         assert roles == ["coach", "annotator", "admin"] and "?token=" not in log
+        # The job worker runs at a lower CPU priority than the server (WORKER_NICENESS), so that
+        # a pipeline job leaves the pages responsive; it lowers it as it starts.
+        pids = [int(x) for x in re.findall(r"\d+", log.split("workers started (pids", 1)[1].split(")", 1)[0])]
+        want = min(19, os.getpriority(os.PRIO_PROCESS, proc.pid) + WORKER_NICENESS)
+        t_end = time.monotonic() + 60
+        while [os.getpriority(os.PRIO_PROCESS, p) for p in pids] != [want] * len(pids):
+            assert time.monotonic() < t_end, ([os.getpriority(os.PRIO_PROCESS, p) for p in pids], want)
+            time.sleep(0.2)
+        assert len(pids) == 1
     finally:
         proc.send_signal(signal.SIGINT)  # serve stops its workers and exits without a traceback
         try:
