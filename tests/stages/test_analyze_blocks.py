@@ -81,6 +81,21 @@ def test_without_the_deflection_or_the_glove_moving_it_is_a_block() -> None:
     ]
 
 
+def test_a_parry_the_analysed_3d_smoothed_away_is_found_in_the_raw_triangulation() -> None:
+    """The fit pulls the gloves apart and undoes the deflection; the raw triangulation keeps them."""
+    smoothed = _bout(0.0, 3.0)
+    for joint in ("left_wrist", "left_elbow"):
+        smoothed[:, 1, J[joint], 1] -= 0.1  # 10 cm short of the jab: no contact in the analysed 3D
+    raw = keypoints(_bout(DEFLECT_M, 3.0))
+    assert "parry" not in [k[0] for k in _defence(smoothed)]  # the analysed 3D alone
+    assert "parry" not in [k[0] for k in _defence(smoothed, raw=raw)]  # the default: opt-in
+    on = AnalyzeConfig(defence=DefenceConfig(parry_measured=True))
+    ev = run(AnalyzeInputs(keypoints(smoothed), raw=raw), on).events
+    assert list(zip(ev.evade_kind.tolist(), ev.evade_person.tolist(), ev.evade_peak_frame.tolist(), strict=True)) == [
+        ("parry", 1, C)
+    ]
+
+
 def test_no_block_when_the_glove_touches_nothing_or_lands() -> None:
     far = _bout(0.0, 3.0)
     far[:, 1, J["left_wrist"], 1] -= 0.5  # the defender's glove stays 0.5 m off the jab's line

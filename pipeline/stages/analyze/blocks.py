@@ -142,13 +142,43 @@ def _deflection(
     return float((glove[after[-1]] - glove[c]) @ across) - v * (after[-1] - c) / fps
 
 
+def _parry(
+    punch: _Limb, guards: dict[str, _Limb], pairs: list[tuple[int, tuple[int, str, str], tuple[int, str, str]]],
+    attacker_id: int, defender_id: int, start: int, peak: int, end: int, across: np.ndarray,
+    frames: np.ndarray, k: int, fps: float, cfg: AnalyzeConfig,
+) -> Evade | None:  # fmt: skip
+    """The parry test of the module docstring on one set of limbs (rows ``start`` .. ``peak`` for
+    the contact, ``k`` rows either side of it for the speeds), or None."""
+    d, tol = cfg.defence, cfg.outcome.contact_tol_m
+    out_rows = np.arange(start, peak + 1)
+    for side, g in guards.items():
+        ok = out_rows[g.ok[out_rows] & punch.ok[out_rows]]
+        touch, _ = _touch_rows(pairs, frames, ok, (defender_id, side, ("hand",)),
+                               (attacker_id, ("hand", "forearm")), _gap_glove_to_limb(g.glove, g.r_glove, punch, ok), tol)  # fmt: skip
+        if touch.size == 0:
+            continue
+        c = int(touch[0])
+        before = np.arange(max(start, c - k), c + 1)
+        after = np.arange(c, min(end, c + k) + 1)
+        if before.size < 2 or after.size < 2 or not (g.ok[before].all() and punch.ok[after].all() and punch.ok[before].all()):
+            continue
+        v_guard = _lateral_speed(g.glove, before, across, fps)
+        deflection = _deflection(punch.glove, c, before, after, across, fps)
+        if (abs(v_guard) >= d.parry_min_speed_mps and np.sign(deflection) == np.sign(v_guard)
+                and abs(deflection) >= d.parry_min_deflection_m):  # fmt: skip
+            return Evade("parry", int(before[0]), c, int(after[-1]), abs(deflection))
+    return None
+
+
 def defend(
     attacker: Body, defender: Body, hand: str, start: int, peak: int, end: int,
     physics: PhysicsResult | None, frames: np.ndarray, cfg: AnalyzeConfig,
+    measured: tuple[Body, Body] | None = None,
 ) -> Evade | None:  # fmt: skip
     """The defender's parry or block of ``attacker``'s punch with ``hand`` (rows ``start`` ..
     ``peak`` .. ``end`` of the analysed ``frames``), or None (module docstring). Call it for
-    punches that did not land."""
+    punches that did not land. ``measured``: (attacker, defender) from the raw triangulation on
+    the same rows; with ``DefenceConfig.parry_measured`` the parry test also runs on them."""
     n = attacker.n_frames
     tol, d = cfg.outcome.contact_tol_m, cfg.defence
     k = max(1, int(round(d.deflect_window_s * attacker.fps)))
@@ -163,24 +193,16 @@ def defend(
     across = np.cross(UP, line / np.linalg.norm(line))
     pairs = _physics_contacts(physics, frames) if physics is not None and cfg.outcome.use_contacts else []
 
-    # Parry: first contact of a defender's glove with the punching forearm or glove on the way out.
-    out_rows = np.arange(start, peak + 1)
-    for side, g in guards.items():
-        ok = out_rows[g.ok[out_rows] & punch.ok[out_rows]]
-        touch, _ = _touch_rows(pairs, frames, ok, (defender.person_id, side, ("hand",)),
-                               (attacker.person_id, ("hand", "forearm")), _gap_glove_to_limb(g.glove, g.r_glove, punch, ok), tol)  # fmt: skip
-        if touch.size == 0:
-            continue
-        c = int(touch[0])
-        before = np.arange(max(start, c - k), c + 1)
-        after = np.arange(c, min(end, c + k) + 1)
-        if before.size < 2 or after.size < 2:
-            continue
-        v_guard = _lateral_speed(g.glove, before, across, attacker.fps)
-        deflection = _deflection(punch.glove, c, before, after, across, attacker.fps)
-        if (abs(v_guard) >= d.parry_min_speed_mps and np.sign(deflection) == np.sign(v_guard)
-                and abs(deflection) >= d.parry_min_deflection_m):  # fmt: skip
-            return Evade("parry", int(before[0]), c, int(after[-1]), abs(deflection))
+    # Parry: first contact of a defender's glove with the punching forearm or glove on the way out,
+    # in the analysed 3D, else in the raw triangulation (the fit pulls the gloves apart).
+    sources = [(punch, guards, pairs)]
+    if measured is not None and d.parry_measured:
+        sources.append((_limb(measured[0], hand), {side: _limb(measured[1], side) for side in HANDS}, []))
+    for p_limb, g_limbs, src_pairs in sources:
+        parry = _parry(p_limb, g_limbs, src_pairs, attacker.person_id, defender.person_id, start, peak, end,
+                       across, frames, k, attacker.fps, cfg)  # fmt: skip
+        if parry is not None:
+            return parry
 
     # Block: the punching glove on a defender's glove or forearm around the strike.
     w = cfg.outcome.window_frames

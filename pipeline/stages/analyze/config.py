@@ -277,6 +277,10 @@ class DefenceConfig:
     deflect_window_s: float = 0.06
     """Span before a contact over which velocities are taken, and after it over which the
     deflection is measured (s, > 0; at least one frame)."""
+    parry_measured: bool = False
+    """Also run the parry test on the raw triangulation's limbs (where it has them) when the
+    analysed 3D finds none (the fit smooths a parry's glove contact away); finds parries at
+    the cost of some false ones taken from blocks (docs/design/analytics.md)."""
 
     def __post_init__(self) -> None:
         _positive("DefenceConfig", slip_min_m=self.slip_min_m, duck_min_m=self.duck_min_m,

@@ -99,9 +99,9 @@ def _rows_on(src: Keypoints3D, kp: Keypoints3D) -> tuple[np.ndarray, np.ndarray]
 
 
 def _motion_body(filtered: Keypoints3D | None, kp: Keypoints3D, pid: int, max_gap: int) -> Body | None:
-    """Athlete ``pid`` of the filtered triangulation on ``kp``'s frames and joints (matched by
-    name; a joint it lacks is invalid), short gaps filled; None without one, or when ``kp`` is
-    that result already (nothing to compare)."""
+    """Athlete ``pid`` of another 3D result (the filtered or the raw triangulation) on ``kp``'s
+    frames and joints (matched by name; a joint it lacks is invalid), short gaps filled; None
+    without one, or when ``kp`` is that result already (nothing to compare)."""
     if filtered is None or filtered is kp or pid not in filtered.person_ids.tolist() or filtered.n_frames == 0:
         return None
     p = filtered.person_index(pid)
@@ -268,6 +268,7 @@ def run(inp: AnalyzeInputs, cfg: AnalyzeConfig = AnalyzeConfig()) -> AnalyzeOutp
         punches += _punches_of(me, opps[i], R, r_ok, stance[:, i], cfg, inp.physics, frames, grip, raw, motion, views)
     punches.sort(key=lambda p: (p.peak, p.person))
     by_id = {b.person_id: b for b in bs}
+    measured = {b.person_id: _motion_body(inp.raw, kp, b.person_id, cfg.punch.max_gap_frames) for b in bs}
     evades: list[tuple[int, defence.Evade, int]] = []
     for k, p in enumerate(punches):
         opp = opps[[b.person_id for b in bs].index(p.person)]
@@ -280,7 +281,9 @@ def run(inp: AnalyzeInputs, cfg: AnalyzeConfig = AnalyzeConfig()) -> AnalyzeOutp
         opp = opps[[b.person_id for b in bs].index(p.person)]
         if opp is None or p.outcome == "landed":
             continue
-        guard_ev = blocks.defend(by_id[p.person], opp, p.hand, p.start, p.peak, p.end, inp.physics, frames, cfg)
+        m_att, m_def = measured[p.person], measured[opp.person_id]
+        guard_ev = blocks.defend(by_id[p.person], opp, p.hand, p.start, p.peak, p.end, inp.physics, frames, cfg,
+                                 (m_att, m_def) if m_att is not None and m_def is not None else None)  # fmt: skip
         if guard_ev is not None:
             evades.append((opp.person_id, guard_ev, k))
     evades.sort(key=lambda e: (e[1].peak, e[0]))
