@@ -10,7 +10,11 @@ fit moves the fist a fraction of the way) keeps its shape. Rules, in order (thre
    drops from the guard and comes up into the target; a straight punch to the body sinks
    without coming back up);
 2. **hook** when its path bulges outwards (to the punching side) from the chord by
-   ``hook_min_bulge``;
+   ``hook_min_bulge`` and swings out first: the way from the start to the bulge's apex heads
+   ``hook_min_swing_deg`` or more outwards of the straight line from the start to the opponent
+   (his centreline ``aim_ahead_m`` ahead of the neck). A straight punch turned aside by a parry
+   bulges from its chord as much, because its end turns inwards; until the contact it heads at
+   the opponent, and it stays a straight punch;
 3. **uppercut** when the fist arrives rising: the upward share of its displacement from
    the fastest frame of the way out to the strike (the arrival) is at least
    ``uppercut_min_rise`` (a hook arrives rising too when the guard is low, hence 2 first), after
@@ -50,6 +54,14 @@ class PathFeatures:
     sag: float
     climb: float
     level: float
+    apex_deg: float = float("nan")
+    """Horizontal heading of the way from the start to the bulge's apex (the path's point
+    farthest outwards from the chord), degrees outwards of straight ahead, in (-180, 180];
+    NaN without an outward bulge (then the bulge alone decides a hook)."""
+    start_fwd_m: float = 0.0
+    """Fist's forward distance from the neck at the start, m."""
+    start_out_m: float = 0.0
+    """Fist's outward (punching side) distance from the neck at the start, m."""
 
 
 def path_features(
@@ -66,15 +78,28 @@ def path_features(
     chord = r[peak] - r[start]
     cn = float(np.linalg.norm(chord))
     bulge = sag = climb = 0.0
+    apex_deg = float("nan")
     if cn > 1e-3:
         c = chord / cn
         dev = seg - np.outer(seg @ c, c)
-        bulge = max(0.0, float(np.max(out * dev[:, 1]))) / cn
+        apex = int(np.argmax(out * dev[:, 1]))
+        bulge = max(0.0, float(out * dev[apex, 1])) / cn
         sag = max(0.0, float(np.max(-dev[:, 2]))) / cn
         climb = float(seg[-1, 2] - np.min(seg[:, 2])) / cn
+        if bulge > 0.0:
+            apex_deg = float(np.degrees(np.arctan2(out * seg[apex, 1], seg[apex, 0])))
     span = opp_shoulder_z - opp_hip_z
     level = (fist_z - opp_hip_z) / span if np.isfinite(span) and span > 0.1 else float("nan")
-    return PathFeatures(rise=float(u[2]), across=float(-out * u[1]), bulge=bulge, sag=sag, climb=climb, level=level)
+    return PathFeatures(rise=float(u[2]), across=float(-out * u[1]), bulge=bulge, sag=sag, climb=climb, level=level,
+                        apex_deg=apex_deg, start_fwd_m=float(r[start, 0]), start_out_m=float(out * r[start, 1]))  # fmt: skip
+
+
+def swing_deg(f: PathFeatures, cfg: TypeConfig) -> float:
+    """How far outwards (degrees) of the straight line from the start to the opponent (his
+    centreline ``cfg.aim_ahead_m`` ahead of the neck) the way to the bulge's apex heads, in
+    [-180, 180); NaN without an apex."""
+    aim_deg = float(np.degrees(np.arctan2(-f.start_out_m, cfg.aim_ahead_m - f.start_fwd_m)))
+    return (f.apex_deg - aim_deg + 180.0) % 360.0 - 180.0
 
 
 def punch_type(f: PathFeatures, lead: bool, cfg: TypeConfig) -> str:
@@ -82,7 +107,7 @@ def punch_type(f: PathFeatures, lead: bool, cfg: TypeConfig) -> str:
     side = "lead" if lead else "rear"
     if f.sag >= cfg.uppercut_min_sag and f.climb >= cfg.uppercut_min_climb:
         return f"{side}_uppercut"
-    if f.bulge >= cfg.hook_min_bulge:
+    if f.bulge >= cfg.hook_min_bulge and not swing_deg(f, cfg) < cfg.hook_min_swing_deg:
         return f"{side}_hook"
     if f.rise >= cfg.uppercut_min_rise and f.sag >= cfg.uppercut_rise_min_sag:
         return f"{side}_uppercut"

@@ -200,7 +200,15 @@ class TypeConfig:
     in [0, 1) (a fist going straight up from the guard is a straight punch the 3D estimate tilted)."""
     hook_min_bulge: float = 0.16
     """A hook's path bulges outwards (to the punching side) from the chord by at least this
-    share of the chord's length, in (0, 1)."""
+    share of the chord's length, in (0, 1) ..."""
+    hook_min_swing_deg: float = 15.0
+    """... and swings out first: the way from the start to the bulge's apex heads at least this
+    far outwards of the straight line from the start to the opponent (degrees, in [0, 90)). A
+    straight punch turned aside by a parry bulges as much (its end turns inwards), but heads
+    at the opponent until the contact."""
+    aim_ahead_m: float = 0.9
+    """Where a straight punch heads: the opponent's centreline this far ahead of the thrower's
+    neck (m, in (0.3, 3); the neck-to-head distance at punching range)."""
     body_level_frac: float = 0.9
     """A straight punch is a body shot when the fist at the strike is below this fraction of
     the way from the opponent's mid-hip to his mid-shoulder height, in (0, 1.5)."""
@@ -213,6 +221,10 @@ class TypeConfig:
             raise ValueError(f"TypeConfig: must be in (0, 1), got {bad}")
         if not 0.0 <= self.uppercut_rise_min_sag < 1.0:
             raise ValueError(f"TypeConfig.uppercut_rise_min_sag must be in [0, 1), got {self.uppercut_rise_min_sag}")
+        if not 0.0 <= self.hook_min_swing_deg < 90.0:
+            raise ValueError(f"TypeConfig.hook_min_swing_deg must be in [0, 90), got {self.hook_min_swing_deg}")
+        if not 0.3 < self.aim_ahead_m < 3.0:
+            raise ValueError(f"TypeConfig.aim_ahead_m must be in (0.3, 3), got {self.aim_ahead_m}")
         if not 0.0 < self.body_level_frac < 1.5:
             raise ValueError(f"TypeConfig.body_level_frac must be in (0, 1.5), got {self.body_level_frac}")
 
