@@ -93,6 +93,15 @@ class FitConfig:
     accel_adapt_window: int = 2
     """Frames (>= 0) either side over which m of the re-weighting is averaged."""
 
+    accel_fast_view_px: float = 0.0
+    """Speed (px per frame at ``reference_fps``, >= 0) of a wrist's 2D keypoint in any view above
+    which that wrist's acceleration and jerk penalties are multiplied by
+    ``accel_fast_view_scale`` at that frame and the frames either side: a fist one view sees
+    fly is not held back by the penalty where the 3D evidence is weak; 0: off."""
+
+    accel_fast_view_scale: float = 0.2
+    """Factor (in (0, 1]) of those penalties at such frames (``accel_fast_view_px``)."""
+
     calibrate_landmarks: bool = True
     """Estimate one constant offset per person and keypoint, rigid in the keypoint's bone frame:
     the difference between the detector's landmarks and the body model's (where a "hip"
@@ -207,6 +216,7 @@ class FitConfig:
             accel_adapt_scale_m=self.accel_adapt_scale_m / r**2,
             accel_adapt_window=max(1, round(self.accel_adapt_window * r)) if self.accel_adapt_window else 0,
             w_jerk=self.w_jerk * r**6,
+            accel_fast_view_px=self.accel_fast_view_px / r,
         )
 
     def __post_init__(self) -> None:
@@ -235,6 +245,10 @@ class FitConfig:
         for name in ("accel_adapt_scale_m", "accel_adapt_gain", "landmark_step", "reference_fps"):
             if not getattr(self, name) > 0:  # also refuses NaN
                 raise ValueError(f"FitConfig.{name} must be positive, got {getattr(self, name)}")
+        if not self.accel_fast_view_px >= 0:  # also refuses NaN
+            raise ValueError(f"FitConfig.accel_fast_view_px must be >= 0, got {self.accel_fast_view_px}")
+        if not 0 < self.accel_fast_view_scale <= 1:
+            raise ValueError(f"FitConfig.accel_fast_view_scale must be in (0, 1], got {self.accel_fast_view_scale}")
         if self.gm_sigma_px <= 0:
             raise ValueError(f"FitConfig.gm_sigma_px must be positive, got {self.gm_sigma_px}")
         if len(self.girth_prior) != 2 or not all(0.0 <= v <= 1.0 for v in self.girth_prior):

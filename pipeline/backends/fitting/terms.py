@@ -106,7 +106,11 @@ def reprojection_term(
 
 
 def accel_term(
-    kp: torch.Tensor, scale_m: float, whole_body: float = 1.0, weights: torch.Tensor | None = None
+    kp: torch.Tensor,
+    scale_m: float,
+    whole_body: float = 1.0,
+    weights: torch.Tensor | None = None,
+    relief: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Sum of (pseudo-Huber, scale ``scale_m``; 0: plain) squared second differences of
     keypoints ``kp`` (persons, frames, joints, 3) along frames (m^2 per frame^2).
@@ -118,7 +122,9 @@ def accel_term(
     squared acceleration, so that a planted foot stays still while the body shifts its weight.
 
     ``weights`` (persons, frames - 2, joints), from ``adaptive_accel_weights``, replace the
-    pseudo-Huber: each keypoint's squared term is multiplied by its weight at that frame."""
+    pseudo-Huber: each keypoint's squared term is multiplied by its weight at that frame.
+    ``relief`` (persons, frames - 2, joints), from ``fast_view_relief``, multiplies each
+    keypoint's term at that frame (after the pseudo-Huber or the weights)."""
     a = kp[:, 2:] - 2 * kp[:, 1:-1] + kp[:, :-2]
     nj = a.shape[2]
     feet = [i for i in FOOT_KEYPOINTS if i < nj]
@@ -135,26 +141,31 @@ def accel_term(
             raise ValueError(
                 f"accel_term: weights of shape {tuple(weights.shape)}, need {tuple(a.shape[:3])}"
             )
-        return (a2 * weights[:, :, body + feet].to(a2.dtype)).sum()
-    if scale_m > 0:  # quadratic for jitter, linear for genuine fast motion (punches)
+        a2 = a2 * weights[:, :, body + feet].to(a2.dtype)
+    elif scale_m > 0:  # quadratic for jitter, linear for genuine fast motion (punches)
         d2 = scale_m**2
         a2 = 2 * d2 * (torch.sqrt(1 + a2 / d2) - 1)
+    if relief is not None:
+        a2 = a2 * relief[:, :, body + feet].to(a2.dtype)
     return a2.sum()
 
 
-def jerk_term(kp: torch.Tensor, accel_weights: torch.Tensor) -> torch.Tensor:
+def jerk_term(kp: torch.Tensor, accel_weights: torch.Tensor, relief: torch.Tensor | None = None) -> torch.Tensor:
     """Sum of squared third differences of keypoints ``kp`` (persons, frames, joints, 3)
     along frames (m² per frame⁶), each weighted by the smaller of the two re-weighted
     acceleration weights (``adaptive_accel_weights``, (persons, frames - 2, joints)) it
     spans: strong where a keypoint is at rest, weak in a punch or a step.
 
     Against the acceleration penalty alone, a smoother of higher order passes the slow
-    motion and stops the frame-to-frame noise more sharply."""
+    motion and stops the frame-to-frame noise more sharply. ``relief`` (as ``accel_term``'s)
+    multiplies those weights."""
     if accel_weights.shape != (kp.shape[0], kp.shape[1] - 2, kp.shape[2]):
         raise ValueError(
             f"jerk_term: weights of shape {tuple(accel_weights.shape)} for keypoints of shape {tuple(kp.shape)}"
         )
     j = kp[:, 3:] - 3 * kp[:, 2:-1] + 3 * kp[:, 1:-2] - kp[:, :-3]
+    if relief is not None:
+        accel_weights = accel_weights * relief.to(accel_weights.dtype)
     w = torch.minimum(accel_weights[:, 1:], accel_weights[:, :-1]).to(j.dtype)
     return (j.square().sum(-1) * w).sum()
 
@@ -163,6 +174,31 @@ def ground_term(kp: torch.Tensor, foot: torch.Tensor, sole_z: torch.Tensor) -> t
     """Unweighted ground term: squared depth below z = 0 (m²) of the foot keypoints
     ``kp[:, foot]`` and of the sole vertices' heights ``sole_z``."""
     return torch.relu(-kp[:, foot, 2]).square().sum() + torch.relu(-sole_z).square().sum()
+
+
+WRISTS: tuple[int, ...] = (COCO17_FEET.index("left_wrist"), COCO17_FEET.index("right_wrist"))
+
+
+def fast_view_relief(targets: Targets, cfg: FitConfig) -> torch.Tensor | None:
+    """(persons, frames - 2, joints) factors of the temporal penalties: ``cfg.accel_fast_view_scale``
+    at a wrist and frame where some view's 2D keypoint of it moves faster than
+    ``cfg.accel_fast_view_px`` per frame (central difference, both neighbours seen), and at the
+    frames either side; 1 elsewhere. None when ``accel_fast_view_px`` is 0 or there are fewer
+    than 3 frames. Row r is frame r + 1, as in ``accel_term``."""
+    if cfg.accel_fast_view_px <= 0 or targets.n_frames < 3:
+        return None
+    nv, P, F = targets.uv_px.shape[0], targets.n_persons, targets.n_frames
+    uv = targets.uv_px.reshape(nv, P, F, -1, 2)
+    seen = targets.w2d.reshape(nv, P, F, -1) > 0
+    speed_px = (uv[:, :, 2:] - uv[:, :, :-2]).norm(dim=-1) / 2
+    fast = ((speed_px > cfg.accel_fast_view_px) & seen[:, :, 2:] & seen[:, :, :-2]).any(dim=0)
+    near = fast.clone()
+    near[:, 1:] |= fast[:, :-1]
+    near[:, :-1] |= fast[:, 1:]
+    relief = torch.ones(near.shape, dtype=targets.kp3d_m.dtype)
+    wrists = list(WRISTS)
+    relief[:, :, wrists] = torch.where(near[:, :, wrists], cfg.accel_fast_view_scale, 1.0).to(relief.dtype)
+    return relief
 
 
 def _by_frame(t: torch.Tensor, ctx: TermContext) -> torch.Tensor:
@@ -256,13 +292,18 @@ class Acceleration(LossTerm):
 
     name = "accel"
 
+    def __init__(self, weight: float, ctx: TermContext) -> None:
+        super().__init__(weight, ctx)
+        self.relief = fast_view_relief(ctx.targets, ctx.cfg)
+
     @classmethod
     def build(cls, ctx: TermContext) -> LossTerm | None:
         return cls(ctx.cfg.w_accel, ctx) if ctx.cfg.w_accel > 0 and ctx.targets.n_frames > 2 else None
 
     def value(self, state: FitState) -> torch.Tensor:
         cfg = self.ctx.cfg
-        return accel_term(_by_frame(state.kp, self.ctx), cfg.accel_scale_m, cfg.accel_whole_body, state.accel_weights)
+        kp = _by_frame(state.kp, self.ctx)
+        return accel_term(kp, cfg.accel_scale_m, cfg.accel_whole_body, state.accel_weights, self.relief)
 
 
 class Jerk(LossTerm):
@@ -270,6 +311,10 @@ class Jerk(LossTerm):
     only once the acceleration penalty is re-weighted (it takes those weights)."""
 
     name = "jerk"
+
+    def __init__(self, weight: float, ctx: TermContext) -> None:
+        super().__init__(weight, ctx)
+        self.relief = fast_view_relief(ctx.targets, ctx.cfg)
 
     @classmethod
     def build(cls, ctx: TermContext) -> LossTerm | None:
@@ -281,7 +326,7 @@ class Jerk(LossTerm):
     def value(self, state: FitState) -> torch.Tensor:
         if state.accel_weights is None:
             raise ValueError("Jerk: needs the re-weighted acceleration weights (FitState.accel_weights)")
-        return jerk_term(_by_frame(state.kp, self.ctx), state.accel_weights)
+        return jerk_term(_by_frame(state.kp, self.ctx), state.accel_weights, self.relief)
 
 
 class Landmarks(LossTerm):
