@@ -414,7 +414,7 @@ def _run(
     force = np.zeros((F, scene.model.nu))
     resid = np.zeros((F, len(rows), 6))
     untrackable = np.zeros((F, len(rows)), dtype=bool)
-    agg: dict[str, float] = {"windows": 0, "windows_with_residual": 0, "untrackable_windows": 0, "iterations": 0, "resets": 0, "kinematic_frames": 0}
+    agg: dict[str, float] = {"windows": 0, "windows_with_residual": 0, "untrackable_windows": 0, "iterations": 0, "resets": 0, "kinematic_frames": 0, "exact_retry_windows": 0}
     untrackable_starts: list[tuple[int, int]] = []
     secs: dict[str, float] = {}
     done = [0]
@@ -471,6 +471,7 @@ def _run(
         agg["iterations"] += sol.iterations
         agg["resets"] += sol.resets
         agg["kinematic_frames"] += sol.kinematic_frames
+        agg["exact_retry_windows"] += sol.exact_retry_windows
         for k, v in sol.seconds.items():
             secs[k] = secs.get(k, 0.0) + v
     contacts, sites = mp.contacts_and_sites(scene, qpos, qvel)
@@ -532,6 +533,7 @@ def _run(
         "untrackable_windows_pct": 100.0 * n_bad / max(int(agg["windows"]), 1),
         "untrackable_frames": bad_frames,
         "untrackable_frames_pct": 100.0 * bad_frames / max(F, 1),
+        "exact_retry_windows": int(agg["exact_retry_windows"]),
         "iterations": int(agg["iterations"]),
         "resets": int(agg["resets"]),
         "kinematic_frames": int(agg["kinematic_frames"]),

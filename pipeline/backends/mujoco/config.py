@@ -296,12 +296,18 @@ class SolverConfig:
     """Frames kept from each window before re-planning, in [1, window]."""
     ilqr: ILQRConfig = field(default_factory=ILQRConfig)
     """The iLQR of each window."""
+    exact_retry_tol_m: float = 0.0
+    """Re-plan a window with every substep differentiated (``ilqr.fd_interval_s`` 0) when its
+    simulated sites miss their targets by more than this on average (m, >= 0), keeping the
+    lower-cost plan; 0: off. Only when ``ilqr.fd_interval_s`` > 0."""
     weights: CostWeights = field(default_factory=CostWeights)
     """The tracking cost's weights."""
 
     def __post_init__(self) -> None:
         nested_from_dicts(self)
         check_field_types(self)
+        if not self.exact_retry_tol_m >= 0:  # also refuses NaN
+            raise ValueError(f"SolverConfig.exact_retry_tol_m must be >= 0, got {self.exact_retry_tol_m}")
         if not (1 <= self.commit <= self.window):
             raise ValueError(f"SolverConfig: need 1 <= commit <= window, got commit={self.commit}, window={self.window}")
 

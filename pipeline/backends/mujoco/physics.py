@@ -89,6 +89,9 @@ class BoutSolution:
     cost_final: list[float] = field(default_factory=list)
     records: list[WindowRecord] = field(default_factory=list)
     """One record per window, in order: where it started and what it carried in."""
+    exact_retry_windows: int = 0
+    """Windows this call re-planned with every substep differentiated
+    (``SolverConfig.exact_retry_tol_m``), whether or not the new plan was kept."""
     planned_from_window: int = 0
     """Index of the first window this call optimised (the earlier ones came from ``resume``)."""
 
@@ -394,6 +397,18 @@ def optimise_bout(
                         res, use_res = res2, True
                     else:
                         set_residual(False)
+            if cfg.exact_retry_tol_m > 0 and cfg.ilqr.fd_interval_s > 0:
+                err = _mean_site_error(scene, res.traj.qpos, targets[s : s + H + 1], weight[s : s + H + 1])
+                if err > cfg.exact_retry_tol_m:
+                    sol.exact_retry_windows += 1
+                    exact = dataclasses.replace(cfg.ilqr, fd_interval_s=0.0)
+                    res2 = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], exact, active(use_res), s, warm, scene.substeps, blocks)
+                    if res2 is not None:
+                        kept, dropped = (res2, res) if res2.traj.total < res.traj.total else (res, res2)
+                        for k_, v_ in dropped.seconds.items():
+                            sol.seconds[k_] += v_
+                        sol.iterations += dropped.iterations
+                        res = kept
             for k_, v_ in res.seconds.items():
                 sol.seconds[k_] += v_
             sol.iterations += res.iterations

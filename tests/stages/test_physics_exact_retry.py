@@ -1,0 +1,97 @@
+"""``SolverConfig.exact_retry_tol_m``: a window whose sites miss their targets by more than
+the tolerance is planned again with every substep differentiated, the lower-cost plan is
+kept, and the stats count those windows; below the tolerance nothing changes."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mujoco")
+
+import pipeline.backends.mujoco.physics as mp  # noqa: E402
+from pipeline.backends.mujoco.config import SolverConfig  # noqa: E402
+from pipeline.schema.keypoints3d import Keypoints3D  # noqa: E402
+from pipeline.stages.physics import PhysicsConfig, PhysicsInputs, PhysicsOutput, run  # noqa: E402
+from tests.backends.test_humanoid import _rest_keypoints  # noqa: E402
+
+N_FRAMES, JUMP_AT, JUMP_M = 12, 7, 1.0
+SOLVER = {"window": 5, "commit": 3, "ilqr": {"max_iter": 2, "n_alpha": 3}}
+STARTS = mp.window_starts(N_FRAMES, SOLVER["window"], SOLVER["commit"])  # type: ignore[arg-type]
+
+
+def _teleporting() -> Keypoints3D:
+    """A standing person whose keypoints jump ``JUMP_M`` along x at frame ``JUMP_AT``: the
+    windows that reach the jump miss their targets by decimetres, the first one does not."""
+    kp = _rest_keypoints(1.0, N_FRAMES)
+    xyz = kp.xyz_m.copy()
+    xyz[JUMP_AT:, ..., 0] += JUMP_M
+    return kp.replace(xyz_m=xyz)
+
+
+def _run(tol: float, monkeypatch: pytest.MonkeyPatch) -> tuple[PhysicsOutput, list[tuple[int, float, float]]]:
+    """The stage on the teleporting person (no residual), and the (window start, fd_interval_s,
+    final cost) of every window plan ``_first_stable`` returned."""
+    real = mp._first_stable
+    calls: list[tuple[int, float, float]] = []
+
+    def spy(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps, blocks=None):  # type: ignore[no-untyped-def]
+        res = real(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps, blocks)
+        calls.append((t0, cfg.fd_interval_s, float("nan") if res is None else float(res.traj.total)))
+        return res
+
+    monkeypatch.setattr(mp, "_first_stable", spy)
+    options: dict[str, Any] = {
+        "skeleton": "keypoints",
+        "solver": {**SOLVER, "exact_retry_tol_m": tol},
+        "residual": {"mode": "off"},
+    }
+    out = run(PhysicsInputs(_teleporting()), PhysicsConfig(**options))
+    return out, calls
+
+
+def test_windows_that_miss_are_replanned_with_exact_jacobians_and_counted(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    out, calls = _run(0.1, monkeypatch)
+    default_fd = SolverConfig().ilqr.fd_interval_s
+    assert default_fd > 0
+    exact = [(t0, c) for t0, fd, c in calls if fd == 0.0]
+    # Only the windows that reach the jump miss by more than 0.1 m, and each is re-planned once.
+    reach = [s for s in STARTS if s + SOLVER["window"] >= JUMP_AT]  # type: ignore[operator]
+    assert [t0 for t0, _ in exact] == reach and STARTS[0] not in reach
+    assert out.stats["exact_retry_windows"] == len(reach)
+    # Both plans of a re-planned window are stable ones (finite costs) to choose from.
+    first = {t0: c for t0, fd, c in calls if fd == default_fd}
+    assert all(np.isfinite(c) and np.isfinite(first[t0]) for t0, c in exact)
+
+
+def test_above_every_error_nothing_is_replanned_and_the_result_is_unchanged(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    off, calls_off = _run(0.0, monkeypatch)
+    high, calls_high = _run(100.0, monkeypatch)
+    assert off.stats["exact_retry_windows"] == high.stats["exact_retry_windows"] == 0
+    assert all(fd > 0 for _, fd, _ in calls_off + calls_high)
+    assert np.array_equal(off.result.qpos, high.result.qpos) and np.array_equal(
+        off.result.ctrl, high.result.ctrl
+    )
+
+
+def test_below_every_error_each_window_is_planned_both_ways(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With a tolerance below any error every window gets a second, exact plan, once."""
+    retried, calls = _run(1e-9, monkeypatch)
+    assert retried.stats["exact_retry_windows"] == len(STARTS)
+    by_start: dict[int, dict[float, float]] = {}
+    for t0, fd, c in calls:
+        by_start.setdefault(t0, {})[fd] = c
+    assert set(by_start) == set(STARTS) and all(len(v) == 2 for v in by_start.values())
+
+
+def test_a_bad_tolerance_is_refused() -> None:
+    with pytest.raises(ValueError, match="exact_retry_tol_m must be >= 0"):
+        SolverConfig(exact_retry_tol_m=-0.01)
+    with pytest.raises(ValueError, match="exact_retry_tol_m must be >= 0"):
+        SolverConfig(exact_retry_tol_m=float("nan"))
