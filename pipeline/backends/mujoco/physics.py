@@ -334,6 +334,12 @@ def optimise_bout(
         if not on:
             d.xfrc_applied[:] = 0.0
 
+    def spend(r: ILQRResult) -> None:
+        """Count a plan's optimisation time and iterations in the bout's totals."""
+        for k_, v_ in r.seconds.items():
+            sol.seconds[k_] += v_
+        sol.iterations += r.iterations
+
     try:
         while s < F - 1:
             H = min(cfg.window, F - 1 - s)
@@ -388,9 +394,7 @@ def optimise_bout(
                 err = _mean_site_error(scene, res.traj.qpos, targets[s : s + H + 1], weight[s : s + H + 1])
                 untrackable = err > residual.fallback_tol_m
                 if untrackable and residual.mode == "fallback" and resid.size:
-                    for k_, v_ in res.seconds.items():
-                        sol.seconds[k_] += v_
-                    sol.iterations += res.iterations
+                    spend(res)
                     set_residual(True)
                     res2 = _first_stable(m, d, cost, qpos0, qvel0, [res.traj.ctrl], cfg.ilqr, active(True), s, warm, scene.substeps, blocks)
                     if res2 is not None and res2.traj.total < res.traj.total:
@@ -405,13 +409,9 @@ def optimise_bout(
                     res2 = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], exact, active(use_res), s, warm, scene.substeps, blocks)
                     if res2 is not None:
                         kept, dropped = (res2, res) if res2.traj.total < res.traj.total else (res, res2)
-                        for k_, v_ in dropped.seconds.items():
-                            sol.seconds[k_] += v_
-                        sol.iterations += dropped.iterations
+                        spend(dropped)
                         res = kept
-            for k_, v_ in res.seconds.items():
-                sol.seconds[k_] += v_
-            sol.iterations += res.iterations
+            spend(res)
             sol.windows += 1
             sol.windows_with_residual += int(use_res)
             sol.untrackable_windows += int(untrackable)
