@@ -1,6 +1,7 @@
 """``SolverConfig.exact_retry_tol_m``: a window whose sites miss their targets by more than
 the tolerance is planned again with every substep differentiated, the lower-cost plan is
-kept, and the stats count those windows; below the tolerance nothing changes."""
+kept, and the stats count those windows; below the tolerance nothing changes. Every plan a
+window makes (this second one, the residual fallback's) enters the iteration count once."""
 
 from __future__ import annotations
 
@@ -95,3 +96,55 @@ def test_a_bad_tolerance_is_refused() -> None:
         SolverConfig(exact_retry_tol_m=-0.01)
     with pytest.raises(ValueError, match="exact_retry_tol_m must be >= 0"):
         SolverConfig(exact_retry_tol_m=float("nan"))
+
+
+@pytest.mark.parametrize("mode, tol", [("off", 1e-9), ("fallback", 0.0), ("fallback", 1e-9)])
+def test_every_plan_is_counted_once(mode: str, tol: float, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The stats' iterations are those of every plan made, kept or dropped, each once: the
+    residual fallback's and the exact retry's second plans too."""
+    real = mp._first_stable
+    made: list[int] = []
+
+    def spy(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps, blocks=None):  # type: ignore[no-untyped-def]
+        res = real(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps, blocks)
+        if res is not None:
+            made.append(res.iterations)
+        return res
+
+    monkeypatch.setattr(mp, "_first_stable", spy)
+    options: dict[str, Any] = {
+        "skeleton": "keypoints",
+        "solver": {**SOLVER, "exact_retry_tol_m": tol},
+        "residual": {"mode": mode},
+    }
+    out = run(PhysicsInputs(_teleporting()), PhysicsConfig(**options))
+    assert len(made) > len(STARTS)  # some window was planned twice
+    assert out.stats["iterations"] == sum(made)
+
+
+def test_a_rejected_fallback_plan_is_counted_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Residual fallback whose plan with the residual costs more (made so here): the plan
+    without it is kept, and both plans' iterations enter the stats once each."""
+    import dataclasses
+
+    real = mp._first_stable
+    made: list[int] = []
+    rejected: list[int] = []
+
+    def spy(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps, blocks=None):  # type: ignore[no-untyped-def]
+        res = real(m, d, cost, qpos0, qvel0, inits, cfg, active, t0, warm, substeps, blocks)
+        if res is None:
+            return res
+        if int(m.opt.disableactuator) & (1 << mp.RESIDUAL_GROUP) == 0:  # the residual acts: a worse plan
+            rejected.append(t0)
+            # Its own iteration count too, so that counting the kept plan twice cannot pass for it.
+            worse = dataclasses.replace(res.traj, costs=res.traj.costs * 1e6 + 1.0)
+            res = dataclasses.replace(res, traj=worse, iterations=res.iterations + 1000)
+        made.append(res.iterations)
+        return res
+
+    monkeypatch.setattr(mp, "_first_stable", spy)
+    options: dict[str, Any] = {"skeleton": "keypoints", "solver": SOLVER, "residual": {"mode": "fallback"}}
+    out = run(PhysicsInputs(_teleporting()), PhysicsConfig(**options))
+    assert rejected and out.stats["windows_with_residual"] == 0  # every residual plan was turned down
+    assert out.stats["iterations"] == sum(made)

@@ -394,12 +394,14 @@ def optimise_bout(
                 err = _mean_site_error(scene, res.traj.qpos, targets[s : s + H + 1], weight[s : s + H + 1])
                 untrackable = err > residual.fallback_tol_m
                 if untrackable and residual.mode == "fallback" and resid.size:
-                    spend(res)
                     set_residual(True)
                     res2 = _first_stable(m, d, cost, qpos0, qvel0, [res.traj.ctrl], cfg.ilqr, active(True), s, warm, scene.substeps, blocks)
                     if res2 is not None and res2.traj.total < res.traj.total:
+                        spend(res)
                         res, use_res = res2, True
                     else:
+                        if res2 is not None:
+                            spend(res2)
                         set_residual(False)
             if cfg.exact_retry_tol_m > 0 and cfg.ilqr.fd_interval_s > 0:
                 err = _mean_site_error(scene, res.traj.qpos, targets[s : s + H + 1], weight[s : s + H + 1])
