@@ -185,11 +185,11 @@ def _bundle_adjust(rig: CameraRig, uv_px: np.ndarray, conf: np.ndarray, cfg: Bun
     converged = False
     n_points, n_obs = 0, np.zeros(rig.n_views, dtype=np.int64)
     for k, mu_sched in enumerate(mus):
-        _, used, err = _triangulate(cur, uv_s, w_s, cfg.start_threshold_px)
+        _, used, err = triangulate_px(cur, uv_s, w_s, cfg.start_threshold_px)
         med = float(np.median(err[used])) if used.any() else np.nan
         mu = max(float(mu_sched), cfg.inlier_factor * med) if np.isfinite(med) else float(mu_sched)
         # Re-triangulate so that views beyond this round's threshold do not pull the points.
-        X, used, err = _triangulate(cur, uv_s, w_s, mu)
+        X, used, err = triangulate_px(cur, uv_s, w_s, mu)
         inl = used & (err <= mu)
         keep = inl.sum(axis=1) >= 2
         _check_counts(
@@ -222,7 +222,7 @@ def reprojection_errors(
     """(points, views) error (undistorted px) of every observation (``w > 0``) against its
     point triangulated by ``triangulate_robust`` (views beyond ``max_view_err_px`` left out
     of the point, but still scored); NaN where not observed or the point is invalid."""
-    X, used, _ = _triangulate(rig, uv_px, w, max_view_err_px)
+    X, used, _ = triangulate_px(rig, uv_px, w, max_view_err_px)
     ok: np.ndarray = np.any(used, axis=1)
     und = _undistort(rig, uv_px)
     proj = _project_px(rig, X)
@@ -360,7 +360,7 @@ def _project_px(rig: CameraRig, X: np.ndarray) -> np.ndarray:
     return h[..., :2] / np.where(np.abs(h[..., 2:]) > 1e-12, h[..., 2:], 1e-12)
 
 
-def _triangulate(
+def triangulate_px(
     rig: CameraRig, uv_px: np.ndarray, w: np.ndarray, max_view_err_px: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Robust DLT in normalised coordinates: X (points, 3) world, used (points, views) and

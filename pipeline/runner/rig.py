@@ -4,6 +4,11 @@
 input calibration (``pipeline.io.session_rig``). Every later stage, the viewer and the
 exports use the rig the ``calibrate`` stage stored (the refined rig when it was adopted,
 the input rig otherwise), as long as that stage is enabled and has run. One rule, here.
+
+The rig ``calibrate`` stores lives in the *floor world*: the input calibration's world
+lowered by the floor height that stage measured (``floor_shift_m`` in its manifest), so that
+the floor is at ``z = 0``. Every 3D result downstream is in that world; ``world_shift_m``
+converts to and from the input calibration's (ground truth given in it, for one).
 """
 
 from __future__ import annotations
@@ -41,3 +46,15 @@ def rig_for(stage: str, session_dir: Path, session: SessionConfig, input_rig: Ca
     if not store.has(CALIBRATE, f"{RIG_ARTIFACT}.npz"):
         return base
     return store.load(CALIBRATE, RIG_ARTIFACT, CameraRig)
+
+
+def world_shift_m(session_dir: Path, session: SessionConfig) -> float:
+    """How far (m) the downstream world lies below the input calibration's world: a point at
+    height ``z`` in the input world is at ``z - world_shift_m`` downstream (0 when ``calibrate``
+    is disabled, has not run, or kept the floor)."""
+    if not uses_calibrated_rig("downstream", session):
+        return 0.0
+    manifest = ArtifactStore(session_dir).manifest(CALIBRATE)
+    if manifest is None:
+        return 0.0
+    return float(manifest.metrics.get("floor_shift_m", 0.0))

@@ -20,11 +20,14 @@
    on a rig that is already good, the adjustment also absorbs view-dependent keypoint
    biases, which ``min_improvement`` leaves out.
 4. ``mode="off"``: the input rig, unchanged.
+5. Whatever the mode, ``floor`` measures the floor's height from the athletes' feet in the
+   chosen rig's world and lowers that world so the floor is at ``z = 0``, the floor every
+   later stage assumes (``pipeline.geometry.floor``; ``floor.mode="off"`` keeps it).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -36,12 +39,13 @@ from pipeline.geometry.bundle import (
     bundle_adjust,
     reprojection_stats,
 )
+from pipeline.geometry.floor import FloorConfig, FloorEstimate, estimate_floor, lower_world
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
 from pipeline.stages.observations import athlete_rows
 
-__all__ = ["BundleConfig", "CalibrateConfig", "CalibrationResult", "gather_pixels", "run", "summary"]
+__all__ = ["BundleConfig", "CalibrateConfig", "FloorConfig", "CalibrationResult", "gather_pixels", "run", "summary"]
 
 
 @dataclass(frozen=True)
@@ -64,6 +68,9 @@ class CalibrateConfig:
     bundle: BundleConfig = field(default_factory=BundleConfig)
     """Bundle adjustment settings (``refine_focal``, thresholds, loss; a dict in
     ``session.json`` is accepted)."""
+    floor: FloorConfig = field(default_factory=FloorConfig)
+    """Where the floor is: measured from the feet, and the world lowered to put it at z = 0
+    (a dict in ``session.json`` is accepted)."""
     incremental: bool = True
     """On a re-run (after an edit), keep the previous run's rig when the new one is within
     ``hold_center_mm`` / ``hold_rotation_deg`` / ``hold_focal_rel`` of it in every camera and
@@ -84,6 +91,12 @@ class CalibrateConfig:
                     f"CalibrateConfig.bundle: unknown keys {sorted(extra)}; known: {sorted(known)}"
                 )
             object.__setattr__(self, "bundle", BundleConfig(**self.bundle))
+        if isinstance(self.floor, dict):
+            known = {f.name for f in fields(FloorConfig)}
+            extra = set(self.floor) - known
+            if extra:
+                raise ValueError(f"CalibrateConfig.floor: unknown keys {sorted(extra)}; known: {sorted(known)}")
+            object.__setattr__(self, "floor", FloorConfig(**self.floor))
         if self.mode not in ("auto", "on", "off"):
             raise ValueError(f"CalibrateConfig.mode must be auto/on/off, got {self.mode!r}")
         if not 0.0 <= self.min_improvement < 1.0:
@@ -114,6 +127,8 @@ class CalibrationResult:
         center_shift_m, rotation_change_deg, focal_scale: (views,) change of the candidate
             against the input rig (zeros / ones without a candidate).
         converged: the candidate's adjustment converged.
+        floor: the floor found in the chosen rig's world and how far ``rig``'s world was
+            lowered to put it at z = 0 (None: not looked for).
     """
 
     rig: CameraRig
@@ -127,6 +142,7 @@ class CalibrationResult:
     rotation_change_deg: np.ndarray = field(default_factory=lambda: np.zeros(0))
     focal_scale: np.ndarray = field(default_factory=lambda: np.zeros(0))
     converged: bool = False
+    floor: FloorEstimate | None = None
 
     def __post_init__(self) -> None:
         V = self.rig.n_views
@@ -164,7 +180,24 @@ def gather_pixels(
 def run(
     tracks: Tracks2D, assoc: Association, rig: CameraRig, cfg: CalibrateConfig = CalibrateConfig()
 ) -> CalibrationResult:
-    """Refine ``rig`` on the associated keypoints (see the module docstring).
+    """Refine ``rig`` on the associated keypoints, then put the floor at z = 0 (see the module
+    docstring).
+
+    Raises:
+        ValueError: as ``refine``.
+    """
+    result = refine(tracks, assoc, rig, cfg)
+    uv, conf, _ = gather_pixels(tracks, assoc, rig.n_views)
+    floor = estimate_floor(
+        result.rig, uv, conf, assoc.n_persons, tuple(tracks.joint_names), cfg.floor, cfg.bundle.min_conf
+    )
+    return replace(result, rig=lower_world(result.rig, floor.shift_m), floor=floor)
+
+
+def refine(
+    tracks: Tracks2D, assoc: Association, rig: CameraRig, cfg: CalibrateConfig = CalibrateConfig()
+) -> CalibrationResult:
+    """Refine ``rig`` on the associated keypoints (steps 1-4 of the module docstring).
 
     Raises:
         ValueError: tracks/association/rig mismatch; with ``mode="on"`` also the errors of
@@ -293,4 +326,8 @@ def summary(result: CalibrationResult) -> dict[str, Any]:
         out["median_after_px"] = r(result.after.all_median_px)
     out["max_center_shift_mm"] = r(1000.0 * float(result.center_shift_m.max(initial=0.0)))
     out["max_rotation_change_deg"] = r(float(result.rotation_change_deg.max(initial=0.0)))
+    if result.floor is not None:
+        out["floor_z_mm"] = r(1000.0 * result.floor.floor_z_m)
+        out["floor_shift_m"] = round(result.floor.shift_m, 6)
+        out["floor"] = result.floor.reason
     return out

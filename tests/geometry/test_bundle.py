@@ -23,12 +23,12 @@ from scipy.optimize._numdiff import approx_derivative
 from pipeline.geometry.bundle import (
     BundleConfig,
     _Problem,
-    _triangulate,
     _undistort,
     align_rig,
     align_similarity,
     apply_similarity,
     bundle_adjust,
+    triangulate_px,
 )
 from pipeline.geometry.rotations import R_from_rodrigues
 from pipeline.schema import Association, CameraRig, Tracks2D
@@ -134,8 +134,8 @@ def test_exact_rig_stays_where_it_was(bout4: SyntheticBout) -> None:
     ankles = np.zeros(uv.shape[0], dtype=bool).reshape(-1, len(names))  # rows: (frame, person, joint)
     ankles[:, [names.index("left_ankle"), names.index("right_ankle")]] = True
     sel = ankles.ravel() & ((w > 0).sum(axis=1) >= 2)
-    X0, _, _ = _triangulate(rig, uv[sel], w[sel], 20.0)
-    X1, _, _ = _triangulate(res.rig, uv[sel], w[sel], 20.0)
+    X0, _, _ = triangulate_px(rig, uv[sel], w[sel], 20.0)
+    X1, _, _ = triangulate_px(res.rig, uv[sel], w[sel], 20.0)
     assert abs(np.median(X1[:, 2] - X0[:, 2])) < 3e-3
 
 
@@ -219,7 +219,7 @@ def test_analytic_jacobian_matches_finite_differences() -> None:
     uv, conf = _obs(b)
     w = np.where(conf >= 0.3, conf, 0.0)
     keep = (w > 0).sum(axis=1) >= 2
-    X, _, _ = _triangulate(b.rig, uv[keep], w[keep], 40.0)
+    X, _, _ = triangulate_px(b.rig, uv[keep], w[keep], 40.0)
     prob = _Problem(b.rig, _undistort(b.rig, uv[keep]), w[keep], refine_focal=True)
     x = prob.x0(X)
     x[:21] += np.random.default_rng(0).normal(0.0, 0.02, 21)  # away from d_aa = 0

@@ -8,7 +8,7 @@ import pytest
 from pipeline.geometry.bundle import BundleConfig
 from pipeline.schema import Association, Tracks2D
 from pipeline.schema.config_types import build_config
-from pipeline.stages.calibrate import CalibrateConfig, gather_pixels, run, summary
+from pipeline.stages.calibrate import CalibrateConfig, FloorConfig, gather_pixels, run, summary
 from pipeline.synthetic.bout import SyntheticBout, make_bout
 from pipeline.synthetic.config import SyntheticConfig
 from tests.geometry.test_bundle import perturb, pose_errors
@@ -22,6 +22,11 @@ def _subset(b: SyntheticBout, keep: np.ndarray, **override: int) -> tuple[Tracks
     return Tracks2D(**{**kw, **override}), Association(
         a.person_ids, a.person_names, a.person_of_det[keep], a.confidence[keep]
     )
+
+
+KEEP_FLOOR = FloorConfig(mode="off")
+"""These tests look at the refinement: a perturbed rig's world is also off the floor, which
+the floor levelling (tests/geometry/test_floor.py) would move."""
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +64,7 @@ def test_auto_refuses_when_data_cannot_constrain_a_camera(bout: SyntheticBout) -
     keep = (bout.tracks.view != 2) | first
     tracks, assoc = _subset(bout, keep)
     start = perturb(bout.rig, seed=0)
-    res = run(tracks, assoc, start)
+    res = run(tracks, assoc, start, CalibrateConfig(floor=KEEP_FLOOR))
     assert not res.adopted and res.rig is start
     assert "too few correspondences" in res.reason and "cam03" in res.reason, res.reason
     with pytest.raises(ValueError, match="too few correspondences"):
@@ -85,7 +90,7 @@ def test_one_camera(bout: SyntheticBout) -> None:
 
 def test_modes_on_and_off(bout: SyntheticBout) -> None:
     start = perturb(bout.rig, seed=1)
-    off = run(bout.tracks, bout.gt_association(), start, CalibrateConfig(mode="off"))
+    off = run(bout.tracks, bout.gt_association(), start, CalibrateConfig(mode="off", floor=KEEP_FLOOR))
     assert off.rig is start and not off.adopted and "off" in off.reason and off.before is None
     on = run(bout.tracks, bout.gt_association(), start, CalibrateConfig(mode="on"))
     assert on.adopted and on.rig is not start and np.isnan(on.heldout_before_px)

@@ -8,11 +8,13 @@ per-camera reprojection before and after.
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from pipeline.geometry.floor import lower_world
 from pipeline.runner.rig import RIG_ARTIFACT
 from pipeline.runner.spec import StageContext, StageSpec
 from pipeline.schema.association import Association
@@ -20,6 +22,8 @@ from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
 from pipeline.stages.calibrate import CalibrateConfig, CalibrationResult, holds, rig_change, summary
 from pipeline.stages.calibrate import run as run_calibrate
+
+log = logging.getLogger(__name__)
 
 
 def _input_files(ctx: StageContext) -> list[Path]:
@@ -58,19 +62,30 @@ def _execute(ctx: StageContext, cfg: CalibrateConfig) -> dict[str, Any]:
     ctx.progress(1, 1, "adopted" if result.adopted else "input calibration kept")
     ctx.metrics.update({k: v for k, v in summary(result).items() if v is not None})
     rig = result.rig
+    if result.floor is not None and result.floor.shift_m == 0.0 and np.isfinite(result.floor.floor_z_m):
+        if abs(result.floor.floor_z_m) > cfg.floor.max_shift_m:
+            log.warning("calibrate: %s", result.floor.reason)
     prev = ctx.reusable_previous(cfg.incremental)
     if prev is not None:
         old = ctx.load_previous(RIG_ARTIFACT, CameraRig)
         old_adopted = bool(prev.manifest.metrics.get("adopted"))
-        if old_adopted == result.adopted and holds(old, rig, cfg):
+        old_shift = float(prev.manifest.metrics.get("floor_shift_m", 0.0))
+        new_shift = result.floor.shift_m if result.floor is not None else 0.0
+        # The refinement and the floor are held separately: each is compared in its own terms.
+        same_floor = abs(new_shift - old_shift) <= cfg.floor.hold_m
+        if old_adopted == result.adopted and same_floor and holds(
+            lower_world(old, -old_shift), lower_world(rig, -new_shift), cfg
+        ):
+            centre, rot, _ = rig_change(lower_world(old, -old_shift), lower_world(rig, -new_shift))
             rig = old
-            centre, rot, _ = rig_change(old, result.rig)
+            ctx.metrics["floor_shift_m"] = old_shift
             ctx.metrics["incremental"] = (
-                f"previous rig kept (the new one is within {centre.max():.2f} mm, {rot.max():.3f} deg of it)"
+                f"previous rig kept (the new one is within {centre.max():.2f} mm, {rot.max():.3f} deg of it, "
+                f"the floor within {1000 * abs(new_shift - old_shift):.1f} mm)"
             )
         else:
             ctx.metrics["incremental"] = (
-                "new rig: it moved beyond the hold thresholds, or the decision changed"
+                "new rig: it moved beyond the hold thresholds, the floor moved, or the decision changed"
             )
     return {RIG_ARTIFACT: rig, "report.json": json.dumps(report(result), indent=2)}
 

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.runner.registry import STAGE_ORDER
+from pipeline.runner.rig import world_shift_m
 from pipeline.runner.spec import StageContext, StageSpec
 from pipeline.schema.association import Association
 from pipeline.schema.base import load_npz
@@ -52,6 +53,10 @@ def _execute(ctx: StageContext, cfg: EvaluateConfig) -> dict[str, Any]:
         if stage in enabled and ctx.has(stage, f"{art}.npz")
     }
     gt = load_npz(ctx.resolve(s.ground_truth), Keypoints3D) if s.ground_truth else None
+    shift = world_shift_m(ctx.session_dir, s)
+    if gt is not None and shift:
+        # The ground truth is in the input calibration's world; the results in the floor world.
+        gt = gt.replace(xyz_m=gt.xyz_m - np.array([0.0, 0.0, shift]))
     labels = None
     if s.ground_truth_labels:
         path = ctx.resolve(s.ground_truth_labels)

@@ -1,0 +1,156 @@
+"""Where the floor is: its height in the calibration's world, from the athletes' feet.
+
+Every later stage puts the floor at the world's ``z = 0``: the filter keeps points above it,
+the fit's ground term, the physics floor plane, the ground and skating metrics and the glTF
+floor. A calibration whose origin is not on the floor (Shelf's is about 9 cm above it) would
+have every planted foot pushed up by that much. ``estimate_floor`` measures the floor from
+the triangulated sole keypoints (heels and toes; ankles when the keypoints have no feet) and
+``lower_world`` moves the rig's world so that the floor is at ``z = 0``
+(docs/design/floor.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from pipeline.geometry.bundle import triangulate_px
+from pipeline.schema.camera import CameraRig
+
+SOLE_JOINTS = ("left_heel", "left_big_toe", "left_small_toe", "right_heel", "right_big_toe", "right_small_toe")
+"""Keypoints on the sole's outline; the lowest of them per frame is on or near the floor."""
+ANKLE_JOINTS = ("left_ankle", "right_ankle")
+"""Used instead when the keypoints have no feet (COCO-17)."""
+
+
+@dataclass(frozen=True)
+class FloorConfig:
+    """How the floor's height is found (``calibrate.floor`` in ``session.json``)."""
+
+    mode: Literal["auto", "off"] = "auto"
+    """``auto``: measure the floor and move the world so it is at ``z = 0`` when it is off by
+    more than ``min_shift_m``; ``off``: the calibration's ``z = 0`` is the floor."""
+    sole_height_m: float = 0.009
+    """Median height (m, >= 0) of a person's lowest sole keypoint per frame above the floor:
+    heels and toes sit a little above the sole. Measured on the synthetic bouts (floor known):
+    7-11 mm with 4 cameras, up to 21 mm with 2."""
+    ankle_height_m: float = 0.065
+    """The same for the lower ankle (m, >= 0), when the keypoints have no feet (synthetic bouts:
+    61-73 mm)."""
+    min_shift_m: float = 0.03
+    """Smallest floor offset (m, >= 0) that moves the world; below it the offset is within what
+    the estimate and the sole heights vary by, and the calibration is kept as it is."""
+    max_shift_m: float = 0.5
+    """Largest floor offset (m, > ``min_shift_m``) taken as the floor; a floor measured further
+    from ``z = 0`` more likely means athletes not standing or a calibration that is not z-up,
+    and is reported, not applied."""
+    hold_m: float = 0.01
+    """On a re-run after an edit, the previous floor is kept when the new one is within this
+    (m, >= 0) of it, so that a local edit does not move every frame downstream."""
+    min_frames: int = 20
+    """Frames (>= 1) with a triangulated foot a person needs to count."""
+    max_view_err_px: float = 15.0
+    """A view whose reprojection error exceeds this (px, > 0) is dropped from a point."""
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("auto", "off"):
+            raise ValueError(f"FloorConfig.mode must be auto/off, got {self.mode!r}")
+        for name in ("sole_height_m", "ankle_height_m", "min_shift_m", "hold_m"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"FloorConfig.{name} must be >= 0 m, got {v}")
+        if not (np.isfinite(self.max_shift_m) and self.max_shift_m > self.min_shift_m):
+            raise ValueError(f"FloorConfig.max_shift_m must be > min_shift_m ({self.min_shift_m} m), got {self.max_shift_m}")
+        if self.min_frames < 1:
+            raise ValueError(f"FloorConfig.min_frames must be >= 1, got {self.min_frames}")
+        if not (np.isfinite(self.max_view_err_px) and self.max_view_err_px > 0):
+            raise ValueError(f"FloorConfig.max_view_err_px must be > 0 px, got {self.max_view_err_px}")
+
+
+@dataclass(frozen=True)
+class FloorEstimate:
+    """The floor found in a rig's world.
+
+    Fields:
+        floor_z_m: the floor's height (m) in the rig's world; NaN when not measured.
+        shift_m: how far (m) the world was lowered: the floor's height when it was moved to
+            ``z = 0``, else 0. A point at ``z`` in the input world is at ``z - shift_m`` after.
+        person_floor_z_m: per person, the floor under them (m; NaN: too few frames).
+        joints: ``"soles"``, ``"ankles"`` or ``""`` (none measured).
+        reason: one sentence on the decision.
+    """
+
+    floor_z_m: float
+    shift_m: float
+    person_floor_z_m: tuple[float, ...]
+    joints: str
+    reason: str
+
+
+def estimate_floor(
+    rig: CameraRig,
+    uv_px: np.ndarray,
+    conf: np.ndarray,
+    n_persons: int,
+    joint_names: tuple[str, ...],
+    cfg: FloorConfig,
+    min_conf: float,
+) -> FloorEstimate:
+    """Measure the floor from the athletes' 2D keypoints, one row per (frame, person, joint)
+    in that order (``calibrate.gather_pixels``): ``uv_px`` (rows, views, 2) distorted pixels,
+    ``conf`` (rows, views) confidence (0 = unseen); keypoints under ``min_conf`` (0..1; the
+    calibrate stage passes ``bundle.min_conf``) are not used.
+
+    Per person: the lowest triangulated foot keypoint of each frame, its median over frames,
+    less ``sole_height_m`` (``ankle_height_m``). The floor is the lowest person's (a person on
+    a platform or a treadmill stands higher; none stands lower than the floor).
+    """
+    if cfg.mode == "off":
+        return FloorEstimate(float("nan"), 0.0, (), "", "floor levelling is off (floor.mode='off')")
+    J = len(joint_names)
+    if uv_px.shape[0] != conf.shape[0] or uv_px.shape[0] % max(J * n_persons, 1):
+        raise ValueError(f"estimate_floor: {uv_px.shape[0]} rows are not frames x {n_persons} persons x {J} joints")
+    names = SOLE_JOINTS if all(n in joint_names for n in SOLE_JOINTS) else ANKLE_JOINTS
+    if not all(n in joint_names for n in names):
+        return FloorEstimate(float("nan"), 0.0, (), "", "floor kept at z = 0: the keypoints have no ankles or feet")
+    kind, height = ("soles", cfg.sole_height_m) if names is SOLE_JOINTS else ("ankles", cfg.ankle_height_m)
+    rows = np.flatnonzero(np.isin(np.arange(uv_px.shape[0]) % J, [joint_names.index(n) for n in names]))
+    w = np.where(conf[rows] >= min_conf, conf[rows], 0.0)
+    seen = (w > 0).sum(axis=1) >= 2
+    rows, w = rows[seen], w[seen]
+    per = [float("nan")] * n_persons
+    if rows.size:
+        X, used, _ = triangulate_px(rig, uv_px[rows], w, cfg.max_view_err_px)
+        ok = used.sum(axis=1) >= 2
+        rows, z = rows[ok], X[ok, 2]
+    if rows.size:
+        group = rows // J  # frame * n_persons + person; ascending
+        starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+        lowest = np.minimum.reduceat(z, starts)
+        who = group[starts] % n_persons
+        for p in range(n_persons):
+            mine = lowest[who == p]
+            if mine.size >= cfg.min_frames:
+                per[p] = float(np.median(mine) - height)
+    if not np.isfinite(per).any():
+        why = f"no athlete has {cfg.min_frames} frames with a foot seen in two views"
+        return FloorEstimate(float("nan"), 0.0, tuple(per), kind, f"floor kept at z = 0: {why}")
+    floor = float(np.nanmin(per))
+    at = f"the {kind} put the floor at z = {1000 * floor:+.0f} mm"
+    if abs(floor) < cfg.min_shift_m:
+        return FloorEstimate(floor, 0.0, tuple(per), kind, f"floor kept at z = 0: {at}, within {1000 * cfg.min_shift_m:.0f} mm")
+    if abs(floor) > cfg.max_shift_m:
+        why = f"{at}, more than {1000 * cfg.max_shift_m:.0f} mm off: check that the calibration is z-up and the athletes stand"
+        return FloorEstimate(floor, 0.0, tuple(per), kind, f"floor kept at z = 0: {why}")
+    return FloorEstimate(floor, floor, tuple(per), kind, f"world moved so the floor is at z = 0: {at}")
+
+
+def lower_world(rig: CameraRig, shift_m: float) -> CameraRig:
+    """``rig`` in a world lowered by ``shift_m`` (m): a point at height ``z`` is at ``z - shift_m``."""
+    if shift_m == 0.0:
+        return rig
+    T = rig.T_world_cam.copy()
+    T[:, 2, 3] -= shift_m
+    return CameraRig(rig.names, rig.K, rig.dist, T, rig.image_size_wh, rig.fps, rig.time_offset_s)
