@@ -91,11 +91,39 @@ def test_below_every_error_each_window_is_planned_both_ways(monkeypatch: pytest.
     assert set(by_start) == set(STARTS) and all(len(v) == 2 for v in by_start.values())
 
 
+def test_a_window_that_starts_far_off_is_not_replanned(monkeypatch: pytest.MonkeyPatch) -> None:
+    """After the jump the simulated person starts each window centimetres to decimetres from
+    its targets; with ``exact_retry_max_start_m`` below that, those windows keep their plan."""
+    real = mp._mean_site_error
+    at_start: list[float] = []
+
+    def spy(scene, qpos, targets, weight):  # type: ignore[no-untyped-def]
+        e = real(scene, qpos, targets, weight)
+        if qpos.shape[0] == 1:  # the start-of-window check
+            at_start.append(e)
+        return e
+
+    monkeypatch.setattr(mp, "_mean_site_error", spy)
+    gate = 0.03
+    options: dict[str, Any] = {
+        "skeleton": "keypoints",
+        "solver": {**SOLVER, "exact_retry_tol_m": 1e-9, "exact_retry_max_start_m": gate},
+        "residual": {"mode": "off"},
+    }
+    out = run(PhysicsInputs(_teleporting()), PhysicsConfig(**options))
+    near = sum(e <= gate for e in at_start)
+    assert len(at_start) == len(STARTS) and 1 <= near < len(STARTS), at_start
+    assert out.stats["exact_retry_windows"] == near
+
+
 def test_a_bad_tolerance_is_refused() -> None:
     with pytest.raises(ValueError, match="exact_retry_tol_m must be >= 0"):
         SolverConfig(exact_retry_tol_m=-0.01)
     with pytest.raises(ValueError, match="exact_retry_tol_m must be >= 0"):
         SolverConfig(exact_retry_tol_m=float("nan"))
+    for bad in (0.0, float("nan")):
+        with pytest.raises(ValueError, match="exact_retry_max_start_m must be > 0"):
+            SolverConfig(exact_retry_max_start_m=bad)
 
 
 @pytest.mark.parametrize("mode, tol", [("off", 1e-9), ("fallback", 0.0), ("fallback", 1e-9)])

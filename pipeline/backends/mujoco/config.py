@@ -300,6 +300,10 @@ class SolverConfig:
     """Re-plan a window with every substep differentiated (``ilqr.fd_interval_s`` 0) when its
     simulated sites miss their targets by more than this on average (m, >= 0), keeping the
     lower-cost plan; 0: off. Only when ``ilqr.fd_interval_s`` > 0."""
+    exact_retry_max_start_m: float = 0.1
+    """... and only when the window starts with its simulated sites within this of their
+    targets on average (m, > 0): one that starts further off (an identity error left an athlete
+    a metre from his input) is missed by any linearisation, and re-planning it is wasted."""
     weights: CostWeights = field(default_factory=CostWeights)
     """The tracking cost's weights."""
 
@@ -308,6 +312,8 @@ class SolverConfig:
         check_field_types(self)
         if not self.exact_retry_tol_m >= 0:  # also refuses NaN
             raise ValueError(f"SolverConfig.exact_retry_tol_m must be >= 0, got {self.exact_retry_tol_m}")
+        if not self.exact_retry_max_start_m > 0:
+            raise ValueError(f"SolverConfig.exact_retry_max_start_m must be > 0, got {self.exact_retry_max_start_m}")
         if not (1 <= self.commit <= self.window):
             raise ValueError(f"SolverConfig: need 1 <= commit <= window, got commit={self.commit}, window={self.window}")
 

@@ -405,7 +405,8 @@ def optimise_bout(
                         set_residual(False)
             if cfg.exact_retry_tol_m > 0 and cfg.ilqr.fd_interval_s > 0:
                 err = _mean_site_error(scene, res.traj.qpos, targets[s : s + H + 1], weight[s : s + H + 1])
-                if err > cfg.exact_retry_tol_m:
+                off_at_start = _mean_site_error(scene, qpos0[None], targets[s : s + 1], weight[s : s + 1])
+                if err > cfg.exact_retry_tol_m and off_at_start <= cfg.exact_retry_max_start_m:
                     sol.exact_retry_windows += 1
                     exact = dataclasses.replace(cfg.ilqr, fd_interval_s=0.0)
                     res2 = _first_stable(m, d, cost, qpos0, qvel0, [u0, ref.ctrl[s : s + H]], exact, active(use_res), s, warm, scene.substeps, blocks)
