@@ -33,22 +33,19 @@ class FloorConfig:
     """``auto``: measure the floor and move the world so it is at ``z = 0`` when it is off by
     more than ``min_shift_m``; ``off``: the calibration's ``z = 0`` is the floor."""
     sole_height_m: float = 0.009
-    """Median height (m, >= 0) of a person's lowest sole keypoint per frame above the floor:
-    heels and toes sit a little above the sole. Measured on the synthetic bouts (floor known):
-    7-11 mm with 4 cameras, up to 21 mm with 2."""
+    """Median height (m, >= 0) above the floor of a person's lowest heel or toe keypoint per
+    frame (docs/design/floor.md)."""
     ankle_height_m: float = 0.065
-    """The same for the lower ankle (m, >= 0), when the keypoints have no feet (synthetic bouts:
-    61-73 mm)."""
+    """The same for the lower ankle (m, >= 0), used when the keypoints have no feet."""
     min_shift_m: float = 0.03
-    """Smallest floor offset (m, >= 0) that moves the world; below it the offset is within what
-    the estimate and the sole heights vary by, and the calibration is kept as it is."""
+    """Smallest floor offset (m, >= 0) that moves the world; smaller ones are within the
+    estimate's spread, and the calibration is kept as it is."""
     max_shift_m: float = 0.5
-    """Largest floor offset (m, > ``min_shift_m``) taken as the floor; a floor measured further
-    from ``z = 0`` more likely means athletes not standing or a calibration that is not z-up,
-    and is reported, not applied."""
+    """Largest floor offset (m, > ``min_shift_m``) applied; one further off (athletes not
+    standing, a calibration not z-up) is reported, not applied."""
     hold_m: float = 0.01
     """On a re-run after an edit, the previous floor is kept when the new one is within this
-    (m, >= 0) of it, so that a local edit does not move every frame downstream."""
+    (m, >= 0) of it."""
     min_frames: int = 20
     """Frames (>= 1) with a triangulated foot a person needs to count."""
     max_view_err_px: float = 15.0

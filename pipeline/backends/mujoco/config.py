@@ -302,8 +302,7 @@ class SolverConfig:
     lower-cost plan; 0: off. Only when ``ilqr.fd_interval_s`` > 0."""
     exact_retry_max_start_m: float = 0.1
     """... and only when the window starts with its simulated sites within this of their
-    targets on average (m, > 0): one that starts further off (an identity error left an athlete
-    a metre from his input) is missed by any linearisation, and re-planning it is wasted."""
+    targets on average (m, > 0); a window that starts further off is not re-planned."""
     weights: CostWeights = field(default_factory=CostWeights)
     """The tracking cost's weights."""
 
