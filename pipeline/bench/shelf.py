@@ -24,7 +24,7 @@ import numpy as np
 
 from pipeline.bench.effort import EFFORT_COLUMNS, session_effort_columns
 from pipeline.evaluate.shelf import ShelfScore, coco_to_shelf, load_ground_truth, score_shelf
-from pipeline.runner.rig import world_shift_m
+from pipeline.runner.rig import in_floor_world, world_shift_m
 from pipeline.schema.sources import RESULT_ARTIFACTS
 
 log = logging.getLogger(__name__)
@@ -255,7 +255,7 @@ def run_bench(
     # The results are in the floor world (pipeline.runner.rig); the ground truth moves there.
     shift = world_shift_m(session, cfg)
     timing["floor_shift_m"] = shift
-    gt = gt.replace(xyz_m=gt.xyz_m - np.array([0.0, 0.0, shift]))
+    gt = in_floor_world(gt, shift)
     order = [r.stage for r in reports]
     rows: list[dict[str, Any]] = []
     for name, stage in OUTPUTS:

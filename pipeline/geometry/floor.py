@@ -11,6 +11,7 @@ the triangulated sole keypoints (heels and toes; ankles when the keypoints have 
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from typing import Literal
 
@@ -23,6 +24,8 @@ SOLE_JOINTS = ("left_heel", "left_big_toe", "left_small_toe", "right_heel", "rig
 """Keypoints on the sole's outline; the lowest of them per frame is on or near the floor."""
 ANKLE_JOINTS = ("left_ankle", "right_ankle")
 """Used instead when the keypoints have no feet (COCO-17)."""
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -140,6 +143,7 @@ def estimate_floor(
         return FloorEstimate(floor, 0.0, tuple(per), kind, f"floor kept at z = 0: {at}, within {1000 * cfg.min_shift_m:.0f} mm")
     if abs(floor) > cfg.max_shift_m:
         why = f"{at}, more than {1000 * cfg.max_shift_m:.0f} mm off: check that the calibration is z-up and the athletes stand"
+        log.warning("floor kept at z = 0: %s", why)
         return FloorEstimate(floor, 0.0, tuple(per), kind, f"floor kept at z = 0: {why}")
     return FloorEstimate(floor, floor, tuple(per), kind, f"world moved so the floor is at z = 0: {at}")
 

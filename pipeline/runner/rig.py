@@ -15,10 +15,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from pipeline.artifacts import ArtifactStore
 from pipeline.io.session_rig import session_rig
 from pipeline.runner.registry import STAGE_ORDER
 from pipeline.schema.camera import CameraRig
+from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.schema.session import SessionConfig
 
 CALIBRATE = "calibrate"
@@ -58,3 +61,9 @@ def world_shift_m(session_dir: Path, session: SessionConfig) -> float:
     if manifest is None:
         return 0.0
     return float(manifest.metrics.get("floor_shift_m", 0.0))
+
+
+def in_floor_world(kp: Keypoints3D, shift_m: float) -> Keypoints3D:
+    """``kp``, given in the input calibration's world, in the downstream world lowered by
+    ``shift_m`` (m, ``world_shift_m``)."""
+    return kp if shift_m == 0.0 else kp.replace(xyz_m=kp.xyz_m - np.array([0.0, 0.0, shift_m]))

@@ -184,29 +184,30 @@ def run(
     docstring).
 
     Raises:
-        ValueError: as ``refine``.
+        ValueError: tracks/association/rig mismatch; with ``mode="on"`` also the errors of
+        ``bundle_adjust`` (one camera, too few correspondences, NaN keypoints). ``auto``
+        turns those into ``adopted=False`` with the error as the reason.
     """
-    result = refine(tracks, assoc, rig, cfg)
-    uv, conf, _ = gather_pixels(tracks, assoc, rig.n_views)
+    uv, conf, frame = gather_pixels(tracks, assoc, rig.n_views)
+    result = _refine(tracks.n_frames, rig, uv, conf, frame, cfg)
     floor = estimate_floor(
         result.rig, uv, conf, assoc.n_persons, tuple(tracks.joint_names), cfg.floor, cfg.bundle.min_conf
     )
     return replace(result, rig=lower_world(result.rig, floor.shift_m), floor=floor)
 
 
-def refine(
-    tracks: Tracks2D, assoc: Association, rig: CameraRig, cfg: CalibrateConfig = CalibrateConfig()
+def _refine(
+    n_frames: int, rig: CameraRig, uv: np.ndarray, conf: np.ndarray, frame: np.ndarray, cfg: CalibrateConfig
 ) -> CalibrationResult:
-    """Refine ``rig`` on the associated keypoints (steps 1-4 of the module docstring).
+    """Refine ``rig`` on the associated keypoints of ``n_frames`` frames, ``gather_pixels``'
+    rows (steps 1-4 of the module docstring).
 
     Raises:
-        ValueError: tracks/association/rig mismatch; with ``mode="on"`` also the errors of
-        ``bundle_adjust`` (one camera, too few correspondences, NaN keypoints). ``auto``
-        turns those into ``adopted=False`` with the error as the reason.
+        ValueError: with ``mode="on"``, the errors of ``bundle_adjust``; ``auto`` turns those
+        into ``adopted=False`` with the error as the reason.
     """
     if cfg.mode == "off":
         return CalibrationResult(rig=rig, adopted=False, reason="calibration refinement is off (mode='off')")
-    uv, conf, frame = gather_pixels(tracks, assoc, rig.n_views)
     if cfg.mode == "on":
         res = bundle_adjust(rig, uv, conf, cfg.bundle)
         # The adjustment's own before/after statistics cover the same observations.
@@ -221,10 +222,10 @@ def refine(
             full=(res.before, res.after),
         )
 
-    if tracks.n_frames < 2 * cfg.min_blocks:
-        reason = f"not refined: {tracks.n_frames} frames are too few for {cfg.min_blocks} held-out blocks"
+    if n_frames < 2 * cfg.min_blocks:
+        reason = f"not refined: {n_frames} frames are too few for {cfg.min_blocks} held-out blocks"
         return CalibrationResult(rig=rig, adopted=False, reason=reason)
-    block_frames = min(cfg.block_s * rig.fps, tracks.n_frames / cfg.min_blocks)
+    block_frames = min(cfg.block_s * rig.fps, n_frames / cfg.min_blocks)
     fit = np.floor(frame / block_frames).astype(np.int64) % 2 == 0
     try:
         res = bundle_adjust(rig, uv[fit], conf[fit], cfg.bundle)

@@ -8,7 +8,6 @@ per-camera reprojection before and after.
 from __future__ import annotations
 
 import json
-import logging
 from pathlib import Path
 from typing import Any
 
@@ -22,8 +21,6 @@ from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
 from pipeline.stages.calibrate import CalibrateConfig, CalibrationResult, holds, rig_change, summary
 from pipeline.stages.calibrate import run as run_calibrate
-
-log = logging.getLogger(__name__)
 
 
 def _input_files(ctx: StageContext) -> list[Path]:
@@ -62,9 +59,6 @@ def _execute(ctx: StageContext, cfg: CalibrateConfig) -> dict[str, Any]:
     ctx.progress(1, 1, "adopted" if result.adopted else "input calibration kept")
     ctx.metrics.update({k: v for k, v in summary(result).items() if v is not None})
     rig = result.rig
-    if result.floor is not None and result.floor.shift_m == 0.0 and np.isfinite(result.floor.floor_z_m):
-        if abs(result.floor.floor_z_m) > cfg.floor.max_shift_m:
-            log.warning("calibrate: %s", result.floor.reason)
     prev = ctx.reusable_previous(cfg.incremental)
     if prev is not None:
         old = ctx.load_previous(RIG_ARTIFACT, CameraRig)
@@ -73,10 +67,9 @@ def _execute(ctx: StageContext, cfg: CalibrateConfig) -> dict[str, Any]:
         new_shift = result.floor.shift_m if result.floor is not None else 0.0
         # The refinement and the floor are held separately: each is compared in its own terms.
         same_floor = abs(new_shift - old_shift) <= cfg.floor.hold_m
-        if old_adopted == result.adopted and same_floor and holds(
-            lower_world(old, -old_shift), lower_world(rig, -new_shift), cfg
-        ):
-            centre, rot, _ = rig_change(lower_world(old, -old_shift), lower_world(rig, -new_shift))
+        old_input, new_input = lower_world(old, -old_shift), lower_world(rig, -new_shift)
+        if old_adopted == result.adopted and same_floor and holds(old_input, new_input, cfg):
+            centre, rot, _ = rig_change(old_input, new_input)
             rig = old
             ctx.metrics["floor_shift_m"] = old_shift
             ctx.metrics["incremental"] = (
