@@ -24,7 +24,8 @@ import numpy as np
 
 from pipeline.bench.effort import EFFORT_COLUMNS, session_effort_columns
 from pipeline.evaluate.shelf import ShelfScore, coco_to_shelf, load_ground_truth, score_shelf
-from pipeline.runner.rig import in_floor_world, world_shift_m
+from pipeline.geometry.level import turn_deg
+from pipeline.runner.rig import in_floor_world, world_from_input
 from pipeline.schema.sources import RESULT_ARTIFACTS
 
 log = logging.getLogger(__name__)
@@ -253,9 +254,10 @@ def run_bench(
 
     gt = load_ground_truth(data / "gt.npz", fps=FPS)
     # The results are in the floor world (pipeline.runner.rig); the ground truth moves there.
-    shift = world_shift_m(session, cfg)
-    timing["floor_shift_m"] = shift
-    gt = in_floor_world(gt, shift)
+    world = world_from_input(session, cfg)
+    timing["floor_shift_m"] = float(-world[2, 3])
+    timing["world_turn_deg"] = round(turn_deg(world[:3, :3]), 3)
+    gt = in_floor_world(gt, world)
     order = [r.stage for r in reports]
     rows: list[dict[str, Any]] = []
     for name, stage in OUTPUTS:

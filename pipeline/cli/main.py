@@ -391,8 +391,9 @@ def _export_calibration(session: Path, cfg: Any, path: Path) -> None:
         how = "the calibrate stage has not run: this is the input calibration"
     else:
         how = str(m.metrics.get("reason", "calibrate stage result"))
-        if m.metrics.get("floor"):
-            how += f"; {m.metrics['floor']}"
+        for key in ("level", "floor"):
+            if m.metrics.get(key):
+                how += f"; {m.metrics[key]}"
     console.print(f"wrote {path} ({len(rig.names)} cameras; {how})", soft_wrap=True)
 
 

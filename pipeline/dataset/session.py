@@ -36,7 +36,7 @@ Step = Callable[[str], None]
 """Called with a short description before each piece of work (progress display)."""
 
 CONVENTIONS: dict[str, str] = {
-    "world": "calibration world frame, metres, z-up, right-handed",
+    "world": "floor world (the calibration's, levelled and lowered: calibrate/world.json), metres, z-up, right-handed",
     "camera": "OpenCV camera frame (x right, y down, z forward); T_world_cam maps camera to world",
     "pixels": "pixels of the distorted (recorded) image, origin at the top-left pixel's corner",
     "time": "frame indices of the synchronised videos; seconds = frame / fps",

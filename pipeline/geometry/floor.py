@@ -32,9 +32,11 @@ log = logging.getLogger(__name__)
 class FloorConfig:
     """How the floor's height is found (``calibrate.floor`` in ``session.json``)."""
 
-    mode: Literal["auto", "off"] = "auto"
-    """``auto``: measure the floor and move the world so it is at ``z = 0`` when it is off by
-    more than ``min_shift_m``; ``off``: the calibration's ``z = 0`` is the floor."""
+    mode: Literal["auto", "height", "off"] = "auto"
+    """``auto``: turn the world so the floor is level (``pipeline.geometry.level``), then move
+    it so the floor is at ``z = 0`` when it is off by more than ``min_shift_m``; ``height``: the
+    move only (the calibration is taken to be z-up and level); ``off``: the calibration's
+    ``z = 0`` is the floor."""
     sole_height_m: float = 0.009
     """Median height (m, >= 0) above the floor of a person's lowest heel or toe keypoint per
     frame (docs/design/floor.md)."""
@@ -44,25 +46,46 @@ class FloorConfig:
     """Smallest floor offset (m, >= 0) that moves the world; smaller ones are within the
     estimate's spread, and the calibration is kept as it is."""
     max_shift_m: float = 0.5
-    """Largest floor offset (m, > ``min_shift_m``) applied; one further off (athletes not
-    standing, a calibration not z-up) is reported, not applied."""
+    """Largest floor offset (m, > ``min_shift_m``) applied when the athletes' up was not measured
+    (``mode="height"``, or no shoulders seen); one further off (athletes not standing, a
+    calibration not z-up) is reported, not applied."""
     hold_m: float = 0.01
     """On a re-run after an edit, the previous floor is kept when the new one is within this
-    (m, >= 0) of it."""
+    (m, >= 0) of it and ``hold_deg`` of its tilt."""
+    hold_deg: float = 0.2
+    """The same for the floor's direction (deg, >= 0)."""
+    min_tilt_deg: float = 1.0
+    """Smallest tilt (deg, >= 0) of the floor's normal from +z that turns the world (it must also
+    be 3 standard errors); level floors measure 0.05-0.64 deg (docs/design/floor.md)."""
+    max_up_gap_deg: float = 10.0
+    """The floor's normal is used only when it is within this (deg, > 0) of the athletes' median
+    up (ankles to shoulders; boxers lean 1-4 deg from the vertical)."""
+    max_body_tilt_deg: float = 30.0
+    """Athletes standing more than this (deg, > 0) off +z mean the calibration is not z-up: the
+    world is turned to their up even when the feet give no plane (a warning)."""
+    cell_m: float = 0.5
+    """Side (m, > 0) of the floor squares whose median sole height the floor's plane is fitted to."""
+    max_slope_se_deg: float = 0.5
+    """The floor's plane is used only when its slope's standard error is at most this (deg, > 0);
+    a short clip whose feet cover little floor gives none (docs/design/floor.md)."""
     min_frames: int = 20
     """Frames (>= 1) with a triangulated foot a person needs to count."""
     max_view_err_px: float = 15.0
     """A view whose reprojection error exceeds this (px, > 0) is dropped from a point."""
 
     def __post_init__(self) -> None:
-        if self.mode not in ("auto", "off"):
-            raise ValueError(f"FloorConfig.mode must be auto/off, got {self.mode!r}")
-        for name in ("sole_height_m", "ankle_height_m", "min_shift_m", "hold_m"):
+        if self.mode not in ("auto", "height", "off"):
+            raise ValueError(f"FloorConfig.mode must be auto/height/off, got {self.mode!r}")
+        for name in ("sole_height_m", "ankle_height_m", "min_shift_m", "hold_m", "hold_deg", "min_tilt_deg"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"FloorConfig.{name} must be >= 0 m, got {v}")
         if not (np.isfinite(self.max_shift_m) and self.max_shift_m > self.min_shift_m):
             raise ValueError(f"FloorConfig.max_shift_m must be > min_shift_m ({self.min_shift_m} m), got {self.max_shift_m}")
+        for name in ("max_up_gap_deg", "max_body_tilt_deg", "cell_m", "max_slope_se_deg"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"FloorConfig.{name} must be > 0, got {v}")
         if self.min_frames < 1:
             raise ValueError(f"FloorConfig.min_frames must be >= 1, got {self.min_frames}")
         if not (np.isfinite(self.max_view_err_px) and self.max_view_err_px > 0):
@@ -97,6 +120,7 @@ def estimate_floor(
     joint_names: tuple[str, ...],
     cfg: FloorConfig,
     min_conf: float,
+    up_measured: bool = False,
 ) -> FloorEstimate:
     """Measure the floor from the athletes' 2D keypoints, one row per (frame, person, joint)
     in that order (``calibrate.gather_pixels``): ``uv_px`` (rows, views, 2) distorted pixels,
@@ -105,7 +129,9 @@ def estimate_floor(
 
     Per person: the lowest triangulated foot keypoint of each frame, its median over frames,
     less ``sole_height_m`` (``ankle_height_m``). The floor is the lowest person's (a person on
-    a platform or a treadmill stands higher; none stands lower than the floor).
+    a platform or a treadmill stands higher; none stands lower than the floor). ``up_measured``
+    (the world was levelled on the athletes' up, ``Levelling.up_measured``) applies a floor
+    further off than ``max_shift_m``.
     """
     if cfg.mode == "off":
         return FloorEstimate(float("nan"), 0.0, (), "", "floor levelling is off (floor.mode='off')")
@@ -141,7 +167,7 @@ def estimate_floor(
     at = f"the {kind} put the floor at z = {1000 * floor:+.0f} mm"
     if abs(floor) < cfg.min_shift_m:
         return FloorEstimate(floor, 0.0, tuple(per), kind, f"floor kept at z = 0: {at}, within {1000 * cfg.min_shift_m:.0f} mm")
-    if abs(floor) > cfg.max_shift_m:
+    if abs(floor) > cfg.max_shift_m and not up_measured:
         why = f"{at}, more than {1000 * cfg.max_shift_m:.0f} mm off: check that the calibration is z-up and the athletes stand"
         log.warning("floor kept at z = 0: %s", why)
         return FloorEstimate(floor, 0.0, tuple(per), kind, f"floor kept at z = 0: {why}")

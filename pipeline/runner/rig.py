@@ -5,14 +5,16 @@ input calibration (``pipeline.io.session_rig``). Every later stage, the viewer a
 exports use the rig the ``calibrate`` stage stored (the refined rig when it was adopted,
 the input rig otherwise), as long as that stage is enabled and has run. One rule, here.
 
-The rig ``calibrate`` stores lives in the *floor world*: the input calibration's world
-lowered by the floor height that stage measured (``floor_shift_m`` in its manifest), so that
-the floor is at ``z = 0``. Every 3D result downstream is in that world; ``world_shift_m``
-converts to and from the input calibration's (ground truth given in it, for one).
+The rig ``calibrate`` stores lives in the *floor world*: the input calibration's world turned
+so that the floor is level and lowered by the floor height that stage measured
+(``world.json``), so that the floor is the plane ``z = 0``. Every 3D result downstream is in
+that world; ``world_from_input`` converts from the input calibration's (ground truth given in
+it, for one).
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +29,8 @@ from pipeline.schema.session import SessionConfig
 CALIBRATE = "calibrate"
 RIG_ARTIFACT = "rig"
 """The ``calibrate`` stage's output holding the rig for the later stages (``rig.npz``)."""
+WORLD_ARTIFACT = "world.json"
+"""The ``calibrate`` stage's output giving that rig's world against the input calibration's."""
 
 
 def uses_calibrated_rig(stage: str, session: SessionConfig) -> bool:
@@ -51,19 +55,31 @@ def rig_for(stage: str, session_dir: Path, session: SessionConfig, input_rig: Ca
     return store.load(CALIBRATE, RIG_ARTIFACT, CameraRig)
 
 
-def world_shift_m(session_dir: Path, session: SessionConfig) -> float:
-    """How far (m) the downstream world lies below the input calibration's world: a point at
-    height ``z`` in the input world is at ``z - world_shift_m`` downstream (0 when ``calibrate``
-    is disabled, has not run, or kept the floor)."""
+def world_from_input(session_dir: Path, session: SessionConfig) -> np.ndarray:
+    """(4, 4) rigid transform from the input calibration's world to the downstream one: a
+    point ``x`` of the input world is at ``W @ [x, 1]`` downstream (identity when ``calibrate``
+    is disabled or has not run). Sessions run before the floor was levelled have only the
+    lowering (``floor_shift_m`` in the manifest)."""
+    W = np.eye(4)
     if not uses_calibrated_rig("downstream", session):
-        return 0.0
-    manifest = ArtifactStore(session_dir).manifest(CALIBRATE)
-    if manifest is None:
-        return 0.0
-    return float(manifest.metrics.get("floor_shift_m", 0.0))
+        return W
+    store = ArtifactStore(session_dir)
+    if store.has(CALIBRATE, WORLD_ARTIFACT):
+        path = store.path(CALIBRATE, WORLD_ARTIFACT)
+        W = np.asarray(json.loads(path.read_text())["world_from_input"], float)
+        if W.shape != (4, 4) or not np.isfinite(W).all():
+            raise ValueError(f"{path}: world_from_input must be a finite 4x4 matrix")
+        return W
+    manifest = store.manifest(CALIBRATE)
+    if manifest is not None:
+        W[2, 3] = -float(manifest.metrics.get("floor_shift_m", 0.0))
+    return W
 
 
-def in_floor_world(kp: Keypoints3D, shift_m: float) -> Keypoints3D:
-    """``kp``, given in the input calibration's world, in the downstream world lowered by
-    ``shift_m`` (m, ``world_shift_m``)."""
-    return kp if shift_m == 0.0 else kp.replace(xyz_m=kp.xyz_m - np.array([0.0, 0.0, shift_m]))
+def in_floor_world(kp: Keypoints3D, world_from_input: np.ndarray) -> Keypoints3D:
+    """``kp``, given in the input calibration's world, in the downstream world
+    (``world_from_input``, 4x4)."""
+    W = np.asarray(world_from_input, float)
+    if np.array_equal(W, np.eye(4)):
+        return kp
+    return kp.replace(xyz_m=kp.xyz_m @ W[:3, :3].T + W[:3, 3])

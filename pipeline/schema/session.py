@@ -47,8 +47,9 @@ class SessionConfig:
         auto_rerun: when an annotation is written, re-run the stale stages.
         rounds_s: ``[[start, end], ...]`` of each round, seconds from the bout's first frame
             (0 <= start < end, in order, not overlapping); empty = not known.
-        ring_xy_m: the ring's corners ``[[x, y], ...]`` in the world frame, metres, in order
-            around the ring (>= 3); empty = not known.
+        ring_xy_m: the ring's corners ``[[x, y], ...]`` in the floor world (``calibrate/world.json``;
+            the calibration's own when it was level), metres, in order around the ring (>= 3);
+            empty = not known.
     """
 
     name: str

@@ -20,9 +20,10 @@
    on a rig that is already good, the adjustment also absorbs view-dependent keypoint
    biases, which ``min_improvement`` leaves out.
 4. ``mode="off"``: the input rig, unchanged.
-5. Whatever the mode, ``floor`` measures the floor's height from the athletes' feet in the
-   chosen rig's world and lowers that world so the floor is at ``z = 0``, the floor every
-   later stage assumes (``pipeline.geometry.floor``; ``floor.mode="off"`` keeps it).
+5. Whatever the mode, ``floor`` turns the chosen rig's world so that the floor is level
+   (``pipeline.geometry.level``), measures the floor's height from the athletes' feet and
+   lowers the world so the floor is at ``z = 0``, the floor every later stage assumes
+   (``pipeline.geometry.floor``; ``floor.mode="off"`` keeps it).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from pipeline.geometry.bundle import (
     reprojection_stats,
 )
 from pipeline.geometry.floor import FloorConfig, FloorEstimate, estimate_floor, lower_world
+from pipeline.geometry.level import Levelling, level_world, transform_world, turn_deg
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
@@ -127,8 +129,10 @@ class CalibrationResult:
         center_shift_m, rotation_change_deg, focal_scale: (views,) change of the candidate
             against the input rig (zeros / ones without a candidate).
         converged: the candidate's adjustment converged.
-        floor: the floor found in the chosen rig's world and how far ``rig``'s world was
+        floor: the floor found in the levelled world and how far ``rig``'s world was
             lowered to put it at z = 0 (None: not looked for).
+        level: how the chosen rig's world was turned to make the floor level (None: not
+            looked for).
     """
 
     rig: CameraRig
@@ -143,6 +147,18 @@ class CalibrationResult:
     focal_scale: np.ndarray = field(default_factory=lambda: np.zeros(0))
     converged: bool = False
     floor: FloorEstimate | None = None
+    level: Levelling | None = None
+
+    @property
+    def world_from_input(self) -> np.ndarray:
+        """(4, 4) rigid transform from the input calibration's world to ``rig``'s: turned by
+        ``level``, then lowered by ``floor.shift_m``."""
+        W = np.eye(4)
+        if self.level is not None:
+            W[:3, :3] = self.level.rotation
+        if self.floor is not None:
+            W[2, 3] = -self.floor.shift_m
+        return W
 
     def __post_init__(self) -> None:
         V = self.rig.n_views
@@ -190,10 +206,17 @@ def run(
     """
     uv, conf, frame = gather_pixels(tracks, assoc, rig.n_views)
     result = _refine(tracks.n_frames, rig, uv, conf, frame, cfg)
-    floor = estimate_floor(
-        result.rig, uv, conf, assoc.n_persons, tuple(tracks.joint_names), cfg.floor, cfg.bundle.min_conf
-    )
-    return replace(result, rig=lower_world(result.rig, floor.shift_m), floor=floor)
+    names, P, min_conf = tuple(tracks.joint_names), assoc.n_persons, cfg.bundle.min_conf
+    level = level_world(result.rig, uv, conf, P, names, cfg.floor, min_conf)
+    turned = transform_world(result.rig, _rotation4(level.rotation))
+    floor = estimate_floor(turned, uv, conf, P, names, cfg.floor, min_conf, up_measured=level.up_measured)
+    return replace(result, rig=lower_world(turned, floor.shift_m), floor=floor, level=level)
+
+
+def _rotation4(R: np.ndarray) -> np.ndarray:
+    W = np.eye(4)
+    W[:3, :3] = R
+    return W
 
 
 def _refine(
@@ -331,4 +354,9 @@ def summary(result: CalibrationResult) -> dict[str, Any]:
         out["floor_z_mm"] = r(1000.0 * result.floor.floor_z_m)
         out["floor_shift_m"] = round(result.floor.shift_m, 6)
         out["floor"] = result.floor.reason
+    if result.level is not None:
+        out["floor_tilt_deg"] = r(result.level.tilt_deg)
+        out["body_tilt_deg"] = r(result.level.body_tilt_deg)
+        out["world_turn_deg"] = r(turn_deg(result.level.rotation))
+        out["level"] = result.level.reason
     return out

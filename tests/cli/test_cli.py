@@ -69,7 +69,7 @@ def test_export_calibration_and_bad_out_paths(tmp_path: Path) -> None:
     r = runner.invoke(app, ["export", str(s), "--calibration", "--out", str(out)])
     assert r.exit_code == 0, r.output
     assert "wrote" in r.output and ("adopted" in r.output or "not" in r.output)
-    assert "floor" in r.output  # where the floor was found, and whether the world moved
+    assert "floor" in r.output and "world" in r.output  # which way is up, where the floor was found, whether the world moved
     rig = load_calibration(out)
     assert rig.names == load_calibration(s / "inputs" / "calibration.toml").names
     for bad, why in ((tmp_path / "missing" / "c.toml", "does not exist"), (tmp_path, "is a folder")):

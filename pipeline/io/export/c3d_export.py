@@ -4,7 +4,8 @@
   (``Red_left_wrist`` when several athletes, the joint name otherwise); ``POINT:DESCRIPTIONS``
   holds "athlete, joint".
 - Units: millimetres (``POINT:UNITS = mm``, the C3D convention), stored as floats.
-- Axes: the calibration world frame as is (z-up, right-handed), as lab-frame C3D files are.
+- Axes: the floor world (the calibration's, levelled and lowered: calibrate/world.json; z-up,
+  right-handed), as lab-frame C3D files are.
 - Rate: ``POINT:RATE`` = the session's frame rate. The header's first frame is the first
   exported video frame (readers show it 1-based: video frame index + 1); frames missing
   between the first and the last exported one are written as invalid samples.

@@ -7,7 +7,7 @@ JSON format (``keypoints3d_to_json``)::
       "source": "filtered" | "fit" | "physics" | ...,
       "fps": 50.0,
       "units": "m",
-      "frame": "calibration world, z-up, right-handed",
+      "frame": "floor world (calibrate/world.json), z-up, right-handed",
       "joint_names": ["nose", ...],
       "persons": [
         {"id": 0, "name": "Red",
@@ -95,7 +95,7 @@ def keypoints3d_to_json(kp: Keypoints3D, names: dict[int, str] | None = None) ->
         "source": kp.source,
         "fps": float(kp.fps),
         "units": "m",
-        "frame": "calibration world, z-up, right-handed",
+        "frame": "floor world (calibrate/world.json), z-up, right-handed",
         "joint_names": list(kp.joint_names),
         "persons": persons,
     }

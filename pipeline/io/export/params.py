@@ -55,7 +55,7 @@ FIT_SOURCES = ("best", "latest", "fit")
 
 ANNY_UNITS = "pose_aa: radians (axis-angle); root_translation_m: metres; phenotypes: [0, 1]"
 ANNY_AXES = (
-    "world z-up, right-handed (calibration world); pose_aa parent-relative in the world-aligned "
+    "world z-up, right-handed (floor world, calibrate/world.json); pose_aa parent-relative in the world-aligned "
     "axes of anny's rest A-pose (facing -y, subject's left +x)"
 )
 SMPL_UNITS = "global_orient, body_pose: radians (axis-angle); transl: metres"

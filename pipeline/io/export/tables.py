@@ -6,7 +6,7 @@ Layout (first row is the header, no comment lines)::
     100,2.000000,0,Red,nose,0.104433,0.004023,1.564782,0.900,1
 
 - ``frame``: video frame index; ``time_s = frame / fps`` (the session's frame rate).
-- ``x_m, y_m, z_m``: metres in the calibration world frame (z-up, right-handed), rounded to
+- ``x_m, y_m, z_m``: metres in the floor world (``calibrate/world.json``; z-up, right-handed), rounded to
   1 micrometre; empty cells where ``valid`` is 0 (no estimate).
 - ``confidence`` in [0, 1] (0 where invalid); ``valid`` 1 or 0.
 - Rows are ordered by frame, then athlete (in the selection's order), then joint.

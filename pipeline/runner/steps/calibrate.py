@@ -1,7 +1,8 @@
 """calibrate step: refine the camera rig on the associated keypoints (bundle adjustment).
 
 Stores the rig every later stage uses (``rig.npz``: the refined rig when adopted, the input
-rig otherwise; ``pipeline.runner.rig``) and ``report.json`` with the decision and the
+rig otherwise, in the levelled floor world; ``pipeline.runner.rig``), ``world.json`` (that
+world against the input calibration's) and ``report.json`` with the decisions and the
 per-camera reprojection before and after.
 """
 
@@ -13,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.geometry.floor import lower_world
-from pipeline.runner.rig import RIG_ARTIFACT
+from pipeline.geometry.level import transform_world, turn_deg
+from pipeline.runner.rig import RIG_ARTIFACT, WORLD_ARTIFACT, world_from_input
 from pipeline.runner.spec import StageContext, StageSpec
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
@@ -58,29 +59,36 @@ def _execute(ctx: StageContext, cfg: CalibrateConfig) -> dict[str, Any]:
     result = run_calibrate(tracks, assoc, ctx.input_rig, cfg)
     ctx.progress(1, 1, "adopted" if result.adopted else "input calibration kept")
     ctx.metrics.update({k: v for k, v in summary(result).items() if v is not None})
-    rig = result.rig
+    rig, world = result.rig, result.world_from_input
     prev = ctx.reusable_previous(cfg.incremental)
     if prev is not None:
         old = ctx.load_previous(RIG_ARTIFACT, CameraRig)
         old_adopted = bool(prev.manifest.metrics.get("adopted"))
-        old_shift = float(prev.manifest.metrics.get("floor_shift_m", 0.0))
-        new_shift = result.floor.shift_m if result.floor is not None else 0.0
+        old_world = world_from_input(ctx.session_dir, ctx.session)
         # The refinement and the floor are held separately: each is compared in its own terms.
-        same_floor = abs(new_shift - old_shift) <= cfg.floor.hold_m
-        old_input, new_input = lower_world(old, -old_shift), lower_world(rig, -new_shift)
+        floor_moved = abs(world[2, 3] - old_world[2, 3])
+        floor_turned = turn_deg(world[:3, :3] @ old_world[:3, :3].T)
+        same_floor = floor_moved <= cfg.floor.hold_m and floor_turned <= cfg.floor.hold_deg
+        old_input = transform_world(old, np.linalg.inv(old_world))
+        new_input = transform_world(rig, np.linalg.inv(world))
         if old_adopted == result.adopted and same_floor and holds(old_input, new_input, cfg):
             centre, rot, _ = rig_change(old_input, new_input)
-            rig = old
-            ctx.metrics["floor_shift_m"] = old_shift
+            rig, world = old, old_world
+            ctx.metrics["floor_shift_m"] = float(prev.manifest.metrics.get("floor_shift_m", 0.0))
+            ctx.metrics["world_turn_deg"] = round(turn_deg(old_world[:3, :3]), 2)
             ctx.metrics["incremental"] = (
                 f"previous rig kept (the new one is within {centre.max():.2f} mm, {rot.max():.3f} deg of it, "
-                f"the floor within {1000 * abs(new_shift - old_shift):.1f} mm)"
+                f"the floor within {1000 * floor_moved:.1f} mm, {floor_turned:.2f} deg)"
             )
         else:
             ctx.metrics["incremental"] = (
                 "new rig: it moved beyond the hold thresholds, the floor moved, or the decision changed"
             )
-    return {RIG_ARTIFACT: rig, "report.json": json.dumps(report(result), indent=2)}
+    return {
+        RIG_ARTIFACT: rig,
+        WORLD_ARTIFACT: json.dumps({"world_from_input": np.round(world, 12).tolist()}, indent=2),
+        "report.json": json.dumps(report(result), indent=2),
+    }
 
 
 SPEC = StageSpec(

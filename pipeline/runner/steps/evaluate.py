@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.runner.registry import STAGE_ORDER
-from pipeline.runner.rig import in_floor_world, world_shift_m
+from pipeline.runner.rig import in_floor_world, world_from_input
 from pipeline.runner.spec import StageContext, StageSpec
 from pipeline.schema.association import Association
 from pipeline.schema.base import load_npz
@@ -53,8 +53,8 @@ def _execute(ctx: StageContext, cfg: EvaluateConfig) -> dict[str, Any]:
         if stage in enabled and ctx.has(stage, f"{art}.npz")
     }
     gt = load_npz(ctx.resolve(s.ground_truth), Keypoints3D) if s.ground_truth else None
-    if gt is not None:  # given in the input calibration's world; the results are in the floor world
-        gt = in_floor_world(gt, world_shift_m(ctx.session_dir, s))
+    if gt is not None:  # given in the input calibration's world; the results are in the floor world (levelled, lowered)
+        gt = in_floor_world(gt, world_from_input(ctx.session_dir, s))
     labels = None
     if s.ground_truth_labels:
         path = ctx.resolve(s.ground_truth_labels)
