@@ -63,6 +63,9 @@ class FloorConfig:
     max_body_tilt_deg: float = 30.0
     """Athletes standing more than this (deg, > 0) off +z mean the calibration is not z-up: the
     world is turned to their up even when the feet give no plane (a warning)."""
+    max_up_spread_deg: float = 20.0
+    """The athletes' up is used only when their per-frame ankles-to-shoulders directions lie
+    within this (deg, median angle from their median; > 0): upright athletes give 5-7 deg."""
     cell_m: float = 0.5
     """Side (m, > 0) of the floor squares whose median sole height the floor's plane is fitted to."""
     max_slope_se_deg: float = 0.5
@@ -82,7 +85,7 @@ class FloorConfig:
                 raise ValueError(f"FloorConfig.{name} must be >= 0 m, got {v}")
         if not (np.isfinite(self.max_shift_m) and self.max_shift_m > self.min_shift_m):
             raise ValueError(f"FloorConfig.max_shift_m must be > min_shift_m ({self.min_shift_m} m), got {self.max_shift_m}")
-        for name in ("max_up_gap_deg", "max_body_tilt_deg", "cell_m", "max_slope_se_deg"):
+        for name in ("max_up_gap_deg", "max_body_tilt_deg", "max_up_spread_deg", "cell_m", "max_slope_se_deg"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"FloorConfig.{name} must be > 0, got {v}")

@@ -168,9 +168,10 @@ def level_world(
     The athletes' up is the median direction from their ankles to their shoulders and nose. The
     floor's normal comes from their lowest sole point (along that up) per frame (``_plane_normal``).
     The floor is turned level when its normal and the athletes' up agree within
-    ``max_up_gap_deg`` and it is ``min_tilt_deg`` and 3 standard errors or more off +z. When the feet give no plane but
-    the athletes stand more than ``max_body_tilt_deg`` off +z, the calibration is not z-up and the
-    world is turned to their up (a warning).
+    ``max_up_gap_deg`` and it is ``min_tilt_deg`` and 3 standard errors or more off +z. When the
+    feet give no plane but the athletes stand more than ``max_body_tilt_deg`` off +z, the
+    calibration is not z-up and the world is turned to their up (a warning). Athletes whose up
+    varies by more than ``max_up_spread_deg`` are not upright: the world is kept.
     """
     if cfg.mode != "auto":
         return Levelling(reason=f"levelling is off (floor.mode={cfg.mode!r})")
@@ -196,6 +197,9 @@ def level_world(
     up = np.median(v, axis=0)
     up /= np.linalg.norm(up)
     body_tilt = angle_deg(up, np.array([0.0, 0.0, 1.0]))
+    spread = float(np.degrees(np.median(np.arccos(np.clip(v @ up, -1.0, 1.0)))))
+    if spread > cfg.max_up_spread_deg:  # athletes on the ground, or the ankles and shoulders mixed up
+        return Levelling(reason=f"world kept as it is: the athletes are not upright (their up varies by {spread:.0f} deg, median; more than {cfg.max_up_spread_deg:g})")
     S = X[:, :, :2] if soles is ANKLE_JOINTS else X[:, :, 2 + len(high) :]
     h = np.where(np.isfinite(S).all(axis=3), S @ up, np.inf)
     low = np.take_along_axis(S, h.argmin(axis=2)[:, :, None, None], axis=2)[:, :, 0].reshape(-1, 3)

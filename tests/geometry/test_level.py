@@ -156,6 +156,18 @@ def test_calibrate_levels_then_lowers(bout: SyntheticBout) -> None:
 
 
 def test_config() -> None:
-    for bad in ({"mode": "level"}, {"min_tilt_deg": -1.0}, {"max_up_gap_deg": 0.0}, {"cell_m": float("nan")}, {"max_slope_se_deg": 0.0}, {"hold_deg": -0.1}, {"max_body_tilt_deg": 0.0}):
+    for bad in ({"mode": "level"}, {"min_tilt_deg": -1.0}, {"max_up_gap_deg": 0.0}, {"cell_m": float("nan")}, {"max_slope_se_deg": 0.0}, {"hold_deg": -0.1}, {"max_body_tilt_deg": 0.0}, {"max_up_spread_deg": -1.0}):
         with pytest.raises(ValueError, match="FloorConfig"):
             FloorConfig(**bad)  # type: ignore[arg-type]
+
+
+def test_athletes_who_are_not_upright_keep_the_world(bout: SyntheticBout) -> None:
+    """Athletes whose ankles-to-shoulders directions vary more than ``max_up_spread_deg`` (on
+    the ground, say) give no up, and a y-up world is then kept, not turned. The boxers here
+    vary by 5-7 deg (median), so a 3 deg limit stands in for athletes on the ground."""
+    y_up = _rigid(_about((1.0, 0.0, 0.0), -90.0), (0.0, 1.2, 0.0))
+    lev, _ = _level(bout, y_up, FloorConfig(max_up_spread_deg=3.0))
+    assert not lev.rotated and not lev.up_measured and "not upright" in lev.reason, lev
+    spread = float(lev.reason.split("varies by ")[1].split(" deg")[0])
+    assert 3.0 < spread < 10.0, lev.reason
+    assert _level(bout, y_up)[0].rotated  # the default limit (20 deg) takes them as upright
