@@ -19,6 +19,7 @@ pytest.importorskip("torch")
 from pipeline.artifacts import ArtifactStore  # noqa: E402
 from pipeline.bench.incremental import run_bench  # noqa: E402
 from pipeline.runner import run  # noqa: E402
+from pipeline.schema import Association  # noqa: E402
 from pipeline.schema.annotations import SwapIdentities, load_annotations  # noqa: E402
 from tests.conftest import write_tiny_session  # noqa: E402
 
@@ -90,10 +91,17 @@ def test_the_physics_row_says_what_its_manifest_reused(bench: tuple[list[dict], 
 def test_the_source_is_left_alone_and_the_edit_goes_through_the_overlay(
     source: Path, bench: tuple[list[dict], Path]
 ) -> None:
-    _, kept = bench
+    """By default the bench times a fix: the swap as a tracking error, then the same swap again,
+    which undoes it; the association is the source's again."""
+    rows, kept = bench
     assert not (source / "annotations.json").exists()
-    (edit,) = load_annotations(kept / "annotations.json")
-    assert isinstance(edit, SwapIdentities) and edit.frame == EDIT_FRAME and edit.view == "cam2"
+    assert rows[0]["edit"] == f"fix of an identity swap at frame {EDIT_FRAME} in cam2"
+    edits = load_annotations(kept / "annotations.json")
+    assert len(edits) == 2 and edits[0] == edits[1]
+    assert isinstance(edits[0], SwapIdentities) and edits[0].frame == EDIT_FRAME and edits[0].view == "cam2"
+    a = ArtifactStore(source).load("associate", "association", Association)
+    b = ArtifactStore(kept).load("associate", "association", Association)
+    assert (a.person_of_det == b.person_of_det).all()
 
 
 def test_an_edit_outside_the_session_is_a_clear_error(source: Path) -> None:
@@ -111,3 +119,16 @@ def test_options_of_the_wrong_type_are_refused_before_any_work(source: Path) -> 
         run_bench(session=str(source), frame="abc")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="full='yes': must be true or false"):
         run_bench(session=str(source), full="yes")  # type: ignore[arg-type]
+
+
+def test_fix_false_times_the_breaking_swap(source: Path, tmp_path: Path) -> None:
+    kept = tmp_path / "swapped"
+    rows = run_bench(session=str(source), frame=EDIT_FRAME, camera="cam2", keep=str(kept), fix=False)
+    assert rows[0]["edit"] == f"identity swap at frame {EDIT_FRAME} in cam2" and rows[-1]["stage"] == "all re-run stages"
+    (edit,) = load_annotations(kept / "annotations.json")
+    assert isinstance(edit, SwapIdentities) and edit.frame == EDIT_FRAME
+    a = ArtifactStore(source).load("associate", "association", Association)
+    b = ArtifactStore(kept).load("associate", "association", Association)
+    assert not (a.person_of_det == b.person_of_det).all()
+    with pytest.raises(ValueError, match="fix='no': must be true or false"):
+        run_bench(session=str(source), fix="no")  # type: ignore[arg-type]
