@@ -12,6 +12,7 @@ the triangulated sole keypoints (heels and toes; ankles when the keypoints have 
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass
 from typing import Literal
 
@@ -115,20 +116,67 @@ class FloorEstimate:
     reason: str
 
 
-def estimate_floor(
-    rig: CameraRig,
-    uv_px: np.ndarray,
-    conf: np.ndarray,
-    n_persons: int,
-    joint_names: tuple[str, ...],
-    cfg: FloorConfig,
-    min_conf: float,
-    up_measured: bool = False,
-) -> FloorEstimate:
-    """Measure the floor from the athletes' 2D keypoints, one row per (frame, person, joint)
-    in that order (``calibrate.gather_pixels``): ``uv_px`` (rows, views, 2) distorted pixels,
-    ``conf`` (rows, views) confidence (0 = unseen); keypoints under ``min_conf`` (0..1; the
-    calibrate stage passes ``bundle.min_conf``) are not used.
+@dataclass(frozen=True)
+class AthletePixels:
+    """The athletes' 2D keypoints, one row per (frame, person, joint) in that order
+    (``calibrate.gather_pixels``), for measuring the floor and which way is up.
+
+    Fields:
+        uv_px: (rows, views, 2) distorted pixels.
+        conf: (rows, views) confidence (0 = unseen).
+        n_persons: persons per frame (>= 0).
+        joint_names: the keypoints' names, one per joint.
+        min_conf: keypoints under this confidence (0..1; the calibrate stage passes
+            ``bundle.min_conf``) are not used.
+    """
+
+    uv_px: np.ndarray
+    conf: np.ndarray
+    n_persons: int
+    joint_names: tuple[str, ...]
+    min_conf: float
+
+    def __post_init__(self) -> None:
+        rows, J = self.uv_px.shape[0], len(self.joint_names)
+        if self.conf.shape[0] != rows or rows % max(J * self.n_persons, 1):
+            raise ValueError(f"AthletePixels: {rows} rows are not frames x {self.n_persons} persons x {J} joints")
+
+    @property
+    def n_frames(self) -> int:
+        """Frames (rows / persons / joints; 0 without persons)."""
+        return self.uv_px.shape[0] // max(self.n_persons * len(self.joint_names), 1)
+
+    def feet(self) -> tuple[tuple[str, ...], str]:
+        """The keypoints whose lowest per frame is on or near the floor and their kind:
+        ``SOLE_JOINTS`` and ``"soles"``, else ``ANKLE_JOINTS`` and ``"ankles"``, else ``((), "")``."""
+        if all(n in self.joint_names for n in SOLE_JOINTS):
+            return SOLE_JOINTS, "soles"
+        if all(n in self.joint_names for n in ANKLE_JOINTS):
+            return ANKLE_JOINTS, "ankles"
+        return (), ""
+
+    def triangulate(self, rig: CameraRig, want: tuple[str, ...], max_view_err_px: float) -> np.ndarray:
+        """The ``want`` joints triangulated in ``rig``'s world, (frames, persons, len(want), 3) m;
+        NaN where not seen in two views (after dropping views off by ``max_view_err_px``)."""
+        J, P = len(self.joint_names), self.n_persons
+        idx = np.array([self.joint_names.index(n) for n in want], dtype=np.int64)
+        out = np.full((self.n_frames, P, len(want), 3), np.nan)
+        rows = np.flatnonzero(np.isin(np.arange(self.uv_px.shape[0]) % max(J, 1), idx))
+        w = np.where(self.conf[rows] >= self.min_conf, self.conf[rows], 0.0)
+        seen = (w > 0).sum(axis=1) >= 2
+        rows, w = rows[seen], w[seen]
+        if rows.size:
+            X, used, _ = triangulate_px(rig, self.uv_px[rows], w, max_view_err_px)
+            ok = used.sum(axis=1) >= 2
+            r = rows[ok]
+            slot = np.full(J, -1)
+            slot[idx] = np.arange(len(want))
+            out[r // (P * J), (r // J) % P, slot[r % J]] = X[ok]
+        return out
+
+
+def estimate_floor(rig: CameraRig, pix: AthletePixels, cfg: FloorConfig, up_measured: bool = False) -> FloorEstimate:
+    """Measure the floor in ``rig``'s world from the athletes' keypoints ``pix``.
 
     Per person: the lowest triangulated foot keypoint of each frame, its median over frames,
     less ``sole_height_m`` (``ankle_height_m``). The floor is the lowest person's (a person on
@@ -138,31 +186,19 @@ def estimate_floor(
     """
     if cfg.mode == "off":
         return FloorEstimate(float("nan"), 0.0, (), "", "floor levelling is off (floor.mode='off')")
-    J = len(joint_names)
-    if uv_px.shape[0] != conf.shape[0] or uv_px.shape[0] % max(J * n_persons, 1):
-        raise ValueError(f"estimate_floor: {uv_px.shape[0]} rows are not frames x {n_persons} persons x {J} joints")
-    names = SOLE_JOINTS if all(n in joint_names for n in SOLE_JOINTS) else ANKLE_JOINTS
-    if not all(n in joint_names for n in names):
+    names, kind = pix.feet()
+    if not names:
         return FloorEstimate(float("nan"), 0.0, (), "", "floor kept at z = 0: the keypoints have no ankles or feet")
-    kind, height = ("soles", cfg.sole_height_m) if names is SOLE_JOINTS else ("ankles", cfg.ankle_height_m)
-    rows = np.flatnonzero(np.isin(np.arange(uv_px.shape[0]) % J, [joint_names.index(n) for n in names]))
-    w = np.where(conf[rows] >= min_conf, conf[rows], 0.0)
-    seen = (w > 0).sum(axis=1) >= 2
-    rows, w = rows[seen], w[seen]
-    per = [float("nan")] * n_persons
-    if rows.size:
-        X, used, _ = triangulate_px(rig, uv_px[rows], w, cfg.max_view_err_px)
-        ok = used.sum(axis=1) >= 2
-        rows, z = rows[ok], X[ok, 2]
-    if rows.size:
-        group = rows // J  # frame * n_persons + person; ascending
-        starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
-        lowest = np.minimum.reduceat(z, starts)
-        who = group[starts] % n_persons
-        for p in range(n_persons):
-            mine = lowest[who == p]
-            if mine.size >= cfg.min_frames:
-                per[p] = float(np.median(mine) - height)
+    height = cfg.sole_height_m if kind == "soles" else cfg.ankle_height_m
+    z = pix.triangulate(rig, names, cfg.max_view_err_px)[..., 2]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN: no foot seen that frame
+        lowest = np.nanmin(z, axis=2) if z.size else np.full(z.shape[:2], np.nan)  # (frames, persons)
+    per = [float("nan")] * pix.n_persons
+    for p in range(pix.n_persons):
+        mine = lowest[:, p][np.isfinite(lowest[:, p])]
+        if mine.size >= cfg.min_frames:
+            per[p] = float(np.median(mine) - height)
     if not np.isfinite(per).any():
         why = f"no athlete has {cfg.min_frames} frames with a foot seen in two views"
         return FloorEstimate(float("nan"), 0.0, tuple(per), kind, f"floor kept at z = 0: {why}")

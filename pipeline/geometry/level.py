@@ -16,8 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.geometry.bundle import triangulate_px
-from pipeline.geometry.floor import ANKLE_JOINTS, SOLE_JOINTS, FloorConfig
+from pipeline.geometry.floor import AthletePixels, FloorConfig
 from pipeline.schema.camera import CameraRig
 
 LOW_JOINTS = ("left_ankle", "right_ankle")
@@ -99,29 +98,6 @@ def transform_world(rig: CameraRig, world_from_input: np.ndarray) -> CameraRig:
     return CameraRig(rig.names, rig.K, rig.dist, T, rig.image_size_wh, rig.fps, rig.time_offset_s)
 
 
-def _points(
-    rig: CameraRig, uv_px: np.ndarray, conf: np.ndarray, n_persons: int, names: tuple[str, ...], want: tuple[str, ...], cfg: FloorConfig, min_conf: float
-) -> np.ndarray:
-    """Triangulated ``want`` joints, (frames, persons, len(want), 3) m; NaN where not seen in
-    two views."""
-    J = len(names)
-    idx = np.array([names.index(n) for n in want])
-    rows = np.flatnonzero(np.isin(np.arange(uv_px.shape[0]) % J, idx))
-    w = np.where(conf[rows] >= min_conf, conf[rows], 0.0)
-    seen = (w > 0).sum(axis=1) >= 2
-    rows, w = rows[seen], w[seen]
-    F = uv_px.shape[0] // (n_persons * J)
-    out = np.full((F, n_persons, len(want), 3), np.nan)
-    if rows.size:
-        X, used, _ = triangulate_px(rig, uv_px[rows], w, cfg.max_view_err_px)
-        ok = used.sum(axis=1) >= 2
-        r = rows[ok]
-        slot = np.full(J, -1)
-        slot[idx] = np.arange(len(want))
-        out[r // (n_persons * J), (r // J) % n_persons, slot[r % J]] = X[ok]
-    return out
-
-
 def _plane_normal(points: np.ndarray, up: np.ndarray, cfg: FloorConfig) -> tuple[np.ndarray | None, float, str]:
     """The floor's unit normal from the lowest sole points (n, 3) (None: not measured), the
     standard error of its slope (deg; NaN) and why not: the median
@@ -153,17 +129,9 @@ def _plane_normal(points: np.ndarray, up: np.ndarray, cfg: FloorConfig) -> tuple
     return n / np.linalg.norm(n), se, ""
 
 
-def level_world(
-    rig: CameraRig,
-    uv_px: np.ndarray,
-    conf: np.ndarray,
-    n_persons: int,
-    joint_names: tuple[str, ...],
-    cfg: FloorConfig,
-    min_conf: float,
-) -> Levelling:
-    """Measure which way is up in ``rig``'s world, from the athletes' 2D keypoints, one row per
-    (frame, person, joint) as for ``estimate_floor``, and the rotation that levels the floor.
+def level_world(rig: CameraRig, pix: AthletePixels, cfg: FloorConfig) -> Levelling:
+    """Measure which way is up in ``rig``'s world from the athletes' keypoints ``pix``, and the
+    rotation that levels the floor.
 
     The athletes' up is the median direction from their ankles to their shoulders and nose. The
     floor's normal comes from their lowest sole point (along that up) per frame (``_plane_normal``).
@@ -175,17 +143,14 @@ def level_world(
     """
     if cfg.mode != "auto":
         return Levelling(reason=f"levelling is off (floor.mode={cfg.mode!r})")
-    names = tuple(joint_names)
-    if uv_px.shape[0] != conf.shape[0] or uv_px.shape[0] % max(len(names) * n_persons, 1):
-        raise ValueError(f"level_world: {uv_px.shape[0]} rows are not frames x {n_persons} persons x {len(names)} joints")
-    if n_persons == 0:
+    if pix.n_persons == 0:
         return Levelling(reason="world kept as it is: no athletes")
-    soles = SOLE_JOINTS if all(n in names for n in SOLE_JOINTS) else ANKLE_JOINTS
-    high = tuple(n for n in HIGH_JOINTS if n in names)
-    if not (all(n in names for n in soles + LOW_JOINTS) and high):
+    soles, _ = pix.feet()
+    high = tuple(n for n in HIGH_JOINTS if n in pix.joint_names)
+    if not (soles and all(n in pix.joint_names for n in LOW_JOINTS) and high):
         return Levelling(reason="world kept as it is: the keypoints have no ankles and shoulders")
     feet = tuple(n for n in soles if n not in LOW_JOINTS)
-    X = _points(rig, uv_px, conf, n_persons, names, LOW_JOINTS + high + feet, cfg, min_conf)
+    X = pix.triangulate(rig, LOW_JOINTS + high + feet, cfg.max_view_err_px)
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN means: not seen
         v = (np.nanmean(X[:, :, 2 : 2 + len(high)], axis=2) - np.nanmean(X[:, :, :2], axis=2)).reshape(-1, 3)
@@ -200,7 +165,7 @@ def level_world(
     spread = float(np.degrees(np.median(np.arccos(np.clip(v @ up, -1.0, 1.0)))))
     if spread > cfg.max_up_spread_deg:  # athletes on the ground, or the ankles and shoulders mixed up
         return Levelling(reason=f"world kept as it is: the athletes are not upright (their up varies by {spread:.0f} deg, median; more than {cfg.max_up_spread_deg:g})")
-    S = X[:, :, :2] if soles is ANKLE_JOINTS else X[:, :, 2 + len(high) :]
+    S = X[:, :, :2] if not feet else X[:, :, 2 + len(high) :]
     h = np.where(np.isfinite(S).all(axis=3), S @ up, np.inf)
     low = np.take_along_axis(S, h.argmin(axis=2)[:, :, None, None], axis=2)[:, :, 0].reshape(-1, 3)
     low = low[np.isfinite(low).all(axis=1)]

@@ -40,7 +40,7 @@ from pipeline.geometry.bundle import (
     bundle_adjust,
     reprojection_stats,
 )
-from pipeline.geometry.floor import FloorConfig, FloorEstimate, estimate_floor, lower_world
+from pipeline.geometry.floor import AthletePixels, FloorConfig, FloorEstimate, estimate_floor, lower_world
 from pipeline.geometry.level import Levelling, level_world, transform_world, turn_deg
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
@@ -206,10 +206,10 @@ def run(
     """
     uv, conf, frame = gather_pixels(tracks, assoc, rig.n_views)
     result = _refine(tracks.n_frames, rig, uv, conf, frame, cfg)
-    names, P, min_conf = tuple(tracks.joint_names), assoc.n_persons, cfg.bundle.min_conf
-    level = level_world(result.rig, uv, conf, P, names, cfg.floor, min_conf)
+    pix = AthletePixels(uv, conf, assoc.n_persons, tuple(tracks.joint_names), cfg.bundle.min_conf)
+    level = level_world(result.rig, pix, cfg.floor)
     turned = transform_world(result.rig, _rotation4(level.rotation))
-    floor = estimate_floor(turned, uv, conf, P, names, cfg.floor, min_conf, up_measured=level.up_measured)
+    floor = estimate_floor(turned, pix, cfg.floor, up_measured=level.up_measured)
     return replace(result, rig=lower_world(turned, floor.shift_m), floor=floor, level=level)
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pipeline.geometry.bundle import BundleConfig
-from pipeline.geometry.floor import FloorConfig, estimate_floor, lower_world
+from pipeline.geometry.floor import AthletePixels, FloorConfig, estimate_floor, lower_world
 from pipeline.geometry.projection import project
 from pipeline.schema.config_types import build_config
 from pipeline.stages.calibrate import CalibrateConfig, gather_pixels, run, summary
@@ -27,7 +27,7 @@ def _estimate(bout: SyntheticBout, rig: object, cfg: FloorConfig = FloorConfig()
     assoc = bout.gt_association()
     uv, conf, _ = gather_pixels(bout.tracks, assoc, bout.rig.n_views)
     names = names or tuple(bout.tracks.joint_names)
-    return estimate_floor(rig, uv, conf, assoc.n_persons, names, cfg, BundleConfig().min_conf)  # type: ignore[arg-type]
+    return estimate_floor(rig, AthletePixels(uv, conf, assoc.n_persons, names, BundleConfig().min_conf), cfg)  # type: ignore[arg-type]
 
 
 def test_lower_world_moves_points_not_pixels(bout: SyntheticBout) -> None:
@@ -98,3 +98,12 @@ def test_config() -> None:
     for bad in ({"mode": "maybe"}, {"sole_height_m": -0.01}, {"min_shift_m": float("nan")}, {"max_shift_m": 0.02}, {"hold_m": -1.0}, {"min_frames": 0}, {"max_view_err_px": 0.0}):
         with pytest.raises(ValueError, match="FloorConfig"):
             FloorConfig(**bad)  # type: ignore[arg-type]
+
+
+def test_pixels_that_are_not_frames_x_persons_x_joints_are_refused() -> None:
+    names = ("left_ankle", "right_ankle")
+    with pytest.raises(ValueError, match="AthletePixels: 5 rows are not frames x 2 persons x 2 joints"):
+        AthletePixels(np.zeros((5, 3, 2)), np.zeros((5, 3)), 2, names, 0.5)
+    with pytest.raises(ValueError, match="AthletePixels: 8 rows"):
+        AthletePixels(np.zeros((8, 3, 2)), np.zeros((4, 3)), 2, names, 0.5)
+    assert AthletePixels(np.zeros((8, 3, 2)), np.zeros((8, 3)), 2, names, 0.5).n_frames == 2

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pipeline.geometry.bundle import BundleConfig
-from pipeline.geometry.floor import FloorConfig, estimate_floor
+from pipeline.geometry.floor import AthletePixels, FloorConfig, estimate_floor
 from pipeline.geometry.level import Levelling, level_world, rotation_to_z, transform_world, turn_deg
 from pipeline.geometry.projection import project
 from pipeline.stages.calibrate import CalibrateConfig, gather_pixels, run, summary
@@ -50,9 +50,10 @@ def _level(bout: SyntheticBout, world_from_true: np.ndarray, cfg: FloorConfig = 
         keep = frames * P * len(names)
         uv, conf = uv[:keep], conf[:keep]
     rig = transform_world(bout.rig, world_from_true)
-    lev = level_world(rig, uv, conf, P, names, cfg, BundleConfig().min_conf)
+    pix = AthletePixels(uv, conf, P, names, BundleConfig().min_conf)
+    lev = level_world(rig, pix, cfg)
     turned = transform_world(rig, _rigid(lev.rotation, (0.0, 0.0, 0.0)))
-    floor = estimate_floor(turned, uv, conf, P, names, cfg, BundleConfig().min_conf, up_measured=lev.up_measured)
+    floor = estimate_floor(turned, pix, cfg, up_measured=lev.up_measured)
     return lev, _rigid(lev.rotation, (0.0, 0.0, -floor.shift_m)) @ world_from_true
 
 
@@ -139,7 +140,7 @@ def test_height_mode_and_missing_joints_keep_the_world(bout: SyntheticBout) -> N
     assoc = bout.gt_association()
     uv, conf, _ = gather_pixels(bout.tracks, assoc, bout.rig.n_views)
     names = tuple(f"joint{i}" if "shoulder" in n or n == "nose" else n for i, n in enumerate(bout.tracks.joint_names))
-    lev = level_world(bout.rig, uv, conf, assoc.n_persons, names, FloorConfig(), BundleConfig().min_conf)
+    lev = level_world(bout.rig, AthletePixels(uv, conf, assoc.n_persons, names, BundleConfig().min_conf), FloorConfig())
     assert not lev.rotated and not lev.up_measured and "no ankles and shoulders" in lev.reason
 
 
