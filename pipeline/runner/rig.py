@@ -66,9 +66,12 @@ def world_from_input(session_dir: Path, session: SessionConfig) -> np.ndarray:
     store = ArtifactStore(session_dir)
     if store.has(CALIBRATE, WORLD_ARTIFACT):
         path = store.path(CALIBRATE, WORLD_ARTIFACT)
-        W = np.asarray(json.loads(path.read_text())["world_from_input"], float)
+        try:
+            W = np.asarray(json.loads(path.read_text())["world_from_input"], float)
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
+            raise ValueError(f"{path}: not a calibrate world file ({e!r}); re-run the calibrate stage") from e
         if W.shape != (4, 4) or not np.isfinite(W).all():
-            raise ValueError(f"{path}: world_from_input must be a finite 4x4 matrix")
+            raise ValueError(f"{path}: world_from_input must be a finite 4x4 matrix; re-run the calibrate stage")
         return W
     manifest = store.manifest(CALIBRATE)
     if manifest is not None:

@@ -139,3 +139,14 @@ def test_a_tilted_calibration_is_levelled_and_the_truth_with_it(tmp_path: Path) 
         for d in (plain, t)
     ]
     assert errors[0] < 40 and abs(errors[1] - errors[0]) < 2.0, errors
+
+
+def test_a_damaged_world_file_is_a_clear_error(bout: SyntheticBout, tmp_path: Path) -> None:
+    s = _session(bout, tmp_path / "damaged", RAISED_M)
+    run(s)
+    path = s / "artifacts" / "calibrate" / "world.json"
+    for text, why in (("{not json", "not a calibrate world file"), ('{"other": 1}', "not a calibrate world file"), ('{"world_from_input": [[1, 0], [0, 1]]}', "finite 4x4")):
+        path.write_text(text)
+        with pytest.raises(ValueError, match=why) as e:
+            world_from_input(s, SessionConfig.load(s))
+        assert "world.json" in str(e.value) and "re-run the calibrate stage" in str(e.value)
