@@ -24,7 +24,7 @@ import numpy as np
 
 from pipeline.bench.effort import EFFORT_COLUMNS, session_effort_columns
 from pipeline.evaluate.shelf import ShelfScore, coco_to_shelf, load_ground_truth, score_shelf
-from pipeline.geometry.level import turn_deg
+from pipeline.geometry.world import turn_deg
 from pipeline.runner.rig import in_floor_world, world_from_input
 from pipeline.schema.sources import RESULT_ARTIFACTS
 

@@ -5,7 +5,7 @@ the fit's ground term, the physics floor plane, the ground and skating metrics a
 floor. A calibration whose origin is not on the floor (Shelf's is about 9 cm above it) would
 have every planted foot pushed up by that much. ``estimate_floor`` measures the floor from
 the triangulated sole keypoints (heels and toes; ankles when the keypoints have no feet) and
-``lower_world`` moves the rig's world so that the floor is at ``z = 0``
+``pipeline.geometry.world.lower_world`` moves the rig's world so that the floor is at ``z = 0``
 (docs/design/floor.md).
 """
 
@@ -211,12 +211,3 @@ def estimate_floor(rig: CameraRig, pix: AthletePixels, cfg: FloorConfig, up_meas
         log.warning("floor kept at z = 0: %s", why)
         return FloorEstimate(floor, 0.0, tuple(per), kind, f"floor kept at z = 0: {why}")
     return FloorEstimate(floor, floor, tuple(per), kind, f"world moved so the floor is at z = 0: {at}")
-
-
-def lower_world(rig: CameraRig, shift_m: float) -> CameraRig:
-    """``rig`` in a world lowered by ``shift_m`` (m): a point at height ``z`` is at ``z - shift_m``."""
-    if shift_m == 0.0:
-        return rig
-    T = rig.T_world_cam.copy()
-    T[:, 2, 3] -= shift_m
-    return CameraRig(rig.names, rig.K, rig.dist, T, rig.image_size_wh, rig.fps, rig.time_offset_s)

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.geometry.floor import AthletePixels, FloorConfig
+from pipeline.geometry.world import angle_deg, rotation_to_z
 from pipeline.schema.camera import CameraRig
 
 LOW_JOINTS = ("left_ankle", "right_ankle")
@@ -62,40 +63,6 @@ class Levelling:
         them standing: the floor's height is then applied whatever its size (``estimate_floor``'s
         ``max_shift_m`` is for a world not known to be z-up)."""
         return bool(np.isfinite(self.body_tilt_deg))
-
-
-def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle (deg, 0-180) between two 3-vectors."""
-    c = float(np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b)))
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
-
-
-def turn_deg(R: np.ndarray) -> float:
-    """Angle (deg, 0-180) of the rotation ``R`` (3, 3)."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
-
-
-def rotation_to_z(n: np.ndarray) -> np.ndarray:
-    """The smallest rotation (3, 3) taking the unit vector ``n`` to +z (a half turn about x
-    when ``n`` points down)."""
-    n = np.asarray(n, float) / np.linalg.norm(n)
-    axis = np.cross(n, [0.0, 0.0, 1.0])
-    s, c = float(np.linalg.norm(axis)), float(n[2])
-    if s < 1e-12:
-        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    k = axis / s
-    Kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + s * Kx + (1.0 - c) * (Kx @ Kx)
-
-
-def transform_world(rig: CameraRig, world_from_input: np.ndarray) -> CameraRig:
-    """``rig`` in a new world: a point ``x`` of the old world is at ``world_from_input @ x``
-    (4x4 rigid) in the new one; the pixels do not change."""
-    W = np.asarray(world_from_input, float)
-    if np.array_equal(W, np.eye(4)):
-        return rig
-    T = np.einsum("ij,vjk->vik", W, rig.T_world_cam)
-    return CameraRig(rig.names, rig.K, rig.dist, T, rig.image_size_wh, rig.fps, rig.time_offset_s)
 
 
 def _plane_normal(points: np.ndarray, up: np.ndarray, cfg: FloorConfig) -> tuple[np.ndarray | None, float, str]:

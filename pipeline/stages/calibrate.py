@@ -40,8 +40,9 @@ from pipeline.geometry.bundle import (
     bundle_adjust,
     reprojection_stats,
 )
-from pipeline.geometry.floor import AthletePixels, FloorConfig, FloorEstimate, estimate_floor, lower_world
-from pipeline.geometry.level import Levelling, level_world, transform_world, turn_deg
+from pipeline.geometry.floor import AthletePixels, FloorConfig, FloorEstimate, estimate_floor
+from pipeline.geometry.level import Levelling, level_world
+from pipeline.geometry.world import lower_world, rigid, transform_world, turn_deg
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
@@ -153,12 +154,8 @@ class CalibrationResult:
     def world_from_input(self) -> np.ndarray:
         """(4, 4) rigid transform from the input calibration's world to ``rig``'s: turned by
         ``level``, then lowered by ``floor.shift_m``."""
-        W = np.eye(4)
-        if self.level is not None:
-            W[:3, :3] = self.level.rotation
-        if self.floor is not None:
-            W[2, 3] = -self.floor.shift_m
-        return W
+        R = self.level.rotation if self.level is not None else None
+        return rigid(R, (0.0, 0.0, -self.floor.shift_m if self.floor is not None else 0.0))
 
     def __post_init__(self) -> None:
         V = self.rig.n_views
@@ -208,15 +205,10 @@ def run(
     result = _refine(tracks.n_frames, rig, uv, conf, frame, cfg)
     pix = AthletePixels(uv, conf, assoc.n_persons, tuple(tracks.joint_names), cfg.bundle.min_conf)
     level = level_world(result.rig, pix, cfg.floor)
-    turned = transform_world(result.rig, _rotation4(level.rotation))
+    turned = transform_world(result.rig, rigid(level.rotation))
     floor = estimate_floor(turned, pix, cfg.floor, up_measured=level.up_measured)
     return replace(result, rig=lower_world(turned, floor.shift_m), floor=floor, level=level)
 
-
-def _rotation4(R: np.ndarray) -> np.ndarray:
-    W = np.eye(4)
-    W[:3, :3] = R
-    return W
 
 
 def _refine(

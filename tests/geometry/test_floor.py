@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from pipeline.geometry.bundle import BundleConfig
-from pipeline.geometry.floor import AthletePixels, FloorConfig, estimate_floor, lower_world
+from pipeline.geometry.floor import AthletePixels, FloorConfig, estimate_floor
 from pipeline.geometry.projection import project
+from pipeline.geometry.world import lower_world
 from pipeline.schema.config_types import build_config
 from pipeline.stages.calibrate import CalibrateConfig, gather_pixels, run, summary
 from pipeline.synthetic.bout import SyntheticBout, make_bout

@@ -10,8 +10,9 @@ import pytest
 
 from pipeline.geometry.bundle import BundleConfig
 from pipeline.geometry.floor import AthletePixels, FloorConfig, estimate_floor
-from pipeline.geometry.level import Levelling, level_world, rotation_to_z, transform_world, turn_deg
+from pipeline.geometry.level import Levelling, level_world
 from pipeline.geometry.projection import project
+from pipeline.geometry.world import rotation_to_z, transform_world, turn_deg
 from pipeline.stages.calibrate import CalibrateConfig, gather_pixels, run, summary
 from pipeline.synthetic.bout import SyntheticBout, make_bout
 from pipeline.synthetic.config import SyntheticConfig

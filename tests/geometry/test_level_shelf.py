@@ -11,7 +11,7 @@ import pytest
 
 from pipeline.artifacts import ArtifactStore
 from pipeline.bench.shelf import session_config
-from pipeline.geometry.level import transform_world, turn_deg
+from pipeline.geometry.world import transform_world, turn_deg
 from pipeline.io.calibration import load_calibration, save_toml
 from pipeline.runner import run
 from pipeline.runner.rig import world_from_input

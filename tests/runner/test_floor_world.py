@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from pipeline.artifacts import ArtifactStore
-from pipeline.geometry.floor import lower_world
-from pipeline.geometry.level import transform_world
+from pipeline.geometry.world import lower_world, transform_world
 from pipeline.runner import run
 from pipeline.runner.rig import world_from_input
 from pipeline.schema import Keypoints3D, SessionConfig

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.geometry.level import transform_world, turn_deg
+from pipeline.geometry.world import transform_world, turn_deg
 from pipeline.runner.rig import RIG_ARTIFACT, WORLD_ARTIFACT, world_from_input
 from pipeline.runner.spec import StageContext, StageSpec
 from pipeline.schema.association import Association
