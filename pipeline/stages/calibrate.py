@@ -42,7 +42,7 @@ from pipeline.geometry.bundle import (
 )
 from pipeline.geometry.floor import AthletePixels, FloorConfig, FloorEstimate, estimate_floor
 from pipeline.geometry.level import Levelling, level_world
-from pipeline.geometry.world import lower_world, rigid, transform_world, turn_deg
+from pipeline.geometry.world import lower_world, rigid, transform_world, turn_deg, turns_between_deg
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
@@ -286,8 +286,6 @@ def _result(
         seen = (w > 0).sum(axis=1) >= 2
         full = reprojection_stats(rig, uv[seen], w[seen], res.rig, cfg.bundle.start_threshold_px)
     before, after = full
-    R0, R1 = rig.T_world_cam[:, :3, :3], res.rig.T_world_cam[:, :3, :3]
-    cos = np.clip((np.einsum("vij,vij->v", R0, R1) - 1.0) / 2.0, -1.0, 1.0)
     return CalibrationResult(
         rig=res.rig if adopted else rig,
         adopted=adopted,
@@ -297,7 +295,7 @@ def _result(
         heldout_before_px=held_before.all_median_px if held_before else float("nan"),
         heldout_after_px=held_after.all_median_px if held_after else float("nan"),
         center_shift_m=np.linalg.norm(res.rig.centers_world_m - rig.centers_world_m, axis=1),
-        rotation_change_deg=np.degrees(np.arccos(cos)),
+        rotation_change_deg=turns_between_deg(rig.T_world_cam[:, :3, :3], res.rig.T_world_cam[:, :3, :3]),
         focal_scale=res.rig.K[:, 0, 0] / rig.K[:, 0, 0],
         converged=res.converged,
     )
@@ -308,10 +306,9 @@ def rig_change(a: CameraRig, b: CameraRig) -> tuple[np.ndarray, np.ndarray, np.n
     (degrees) and relative focal change; ``ValueError`` when the cameras differ."""
     if a.names != b.names:
         raise ValueError(f"rig_change: different cameras {list(a.names)} vs {list(b.names)}")
-    R0, R1 = a.T_world_cam[:, :3, :3], b.T_world_cam[:, :3, :3]
-    cos = np.clip((np.einsum("vij,vij->v", R0, R1) - 1.0) / 2.0, -1.0, 1.0)
     centre = 1000.0 * np.linalg.norm(a.centers_world_m - b.centers_world_m, axis=1)
-    return centre, np.degrees(np.arccos(cos)), np.abs(b.K[:, 0, 0] / a.K[:, 0, 0] - 1.0)
+    rot = turns_between_deg(a.T_world_cam[:, :3, :3], b.T_world_cam[:, :3, :3])
+    return centre, rot, np.abs(b.K[:, 0, 0] / a.K[:, 0, 0] - 1.0)
 
 
 def holds(previous: CameraRig, new: CameraRig, cfg: CalibrateConfig) -> bool:
