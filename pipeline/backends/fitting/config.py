@@ -196,8 +196,9 @@ class FitConfig:
     rest, the shapes and the landmark offsets (``pipeline.stages.fit_incremental``); False:
     always fit in full."""
 
-    incremental_margin_frames: int = 10
-    """Frames re-optimised on each side of a changed one in an incremental re-fit (>= 0)."""
+    incremental_margin_frames: int = 0
+    """Frames re-optimised on each side of a changed one in an incremental re-fit (>= 0); 0:
+    only the changed ones, next to kept frames that stay in the loss as fixed context."""
 
     def at_rate(self, fps: float) -> FitConfig:
         """This config with its temporal settings converted from ``reference_fps`` to ``fps``
