@@ -5,7 +5,6 @@ it; ``calibrate/world.json`` stores the result)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 
@@ -27,18 +26,21 @@ def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
-def turn_deg(R: np.ndarray) -> Any:
-    """Angle (deg, 0-180) of the rotation ``R`` (3, 3): a float; of each of a stack (..., 3, 3):
-    an array."""
+def _turns_deg(R: np.ndarray) -> np.ndarray:
+    """Angle (deg, 0-180) of each rotation of a stack (..., 3, 3)."""
     c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
-    deg = np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
-    return float(deg) if np.ndim(deg) == 0 else deg
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def turn_deg(R: np.ndarray) -> float:
+    """Angle (deg, 0-180) of the rotation ``R`` (3, 3)."""
+    return float(_turns_deg(R))
 
 
 def turns_between_deg(R0: np.ndarray, R1: np.ndarray) -> np.ndarray:
     """Angle (deg, 0-180) of the rotation from each of ``R0`` to the matching one of ``R1``,
     both (n, 3, 3)."""
-    return turn_deg(np.swapaxes(R0, -1, -2) @ R1)
+    return _turns_deg(np.swapaxes(R0, -1, -2) @ R1)
 
 
 def rotation_to_z(n: np.ndarray) -> np.ndarray:
