@@ -210,7 +210,6 @@ def run(
     return replace(result, rig=lower_world(turned, floor.shift_m), floor=floor, level=level)
 
 
-
 def _refine(
     n_frames: int, rig: CameraRig, uv: np.ndarray, conf: np.ndarray, frame: np.ndarray, cfg: CalibrateConfig
 ) -> CalibrationResult:

@@ -88,8 +88,30 @@ class Clip:
     """Bound on the difference between the simulated and the input landing frame; 1-2 / 0-3."""
 
 
-HALF = Clip("half speed", 2, 20, 72, RECIPE, 0.034, 0.083, 0.033, 2, 3)
-FULL = Clip("full speed", 1, 10, 48, replace(RECIPE, max_iter=100, rel_tol=1e-6), 0.045, 0.082, 0.030, 2, 5)
+HALF = Clip(
+    name="half speed",
+    slow=2,
+    skip=20,
+    n_frames=72,
+    ilqr=RECIPE,
+    mean_error_m=0.034,
+    frame_error_m=0.083,
+    pelvis_dz_m=0.033,
+    lift_frames=2,
+    land_frames=3,
+)
+FULL = Clip(
+    name="full speed",
+    slow=1,
+    skip=10,
+    n_frames=48,
+    ilqr=replace(RECIPE, max_iter=100, rel_tol=1e-6),
+    mean_error_m=0.045,
+    frame_error_m=0.082,
+    pelvis_dz_m=0.030,
+    lift_frames=2,
+    land_frames=5,
+)
 
 
 def _hips_mid(xyz: np.ndarray) -> np.ndarray:
