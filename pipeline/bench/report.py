@@ -3,7 +3,9 @@
 ``render(name, rows)`` turns one bench's rows (as ``cornerman bench NAME --json rows.json``
 writes them) into a markdown table with the columns that matter for that bench;
 ``update_readme(readme, {name: json_path})`` replaces the text between the README's
-markers ``<!-- bench:NAME -->`` and ``<!-- /bench:NAME -->`` with it. From the shell::
+markers ``<!-- bench:NAME -->`` and ``<!-- /bench:NAME -->`` with it, and with the line
+saying what it was measured with when the JSON has its ``rows.env.json`` beside it
+(``pipeline.bench.environment``). From the shell::
 
     python -m pipeline.bench.report README.md shelf=shelf.json footage=footage.json \\
         fit=fit.json physics=physics.json triangulation=triangulation.json analytics=analytics.json
@@ -27,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from pipeline.bench import environment as bench_env
 from pipeline.stages.evaluate import FLAG_KINDS
 
 Row = Mapping[str, Any]
@@ -315,6 +318,9 @@ def update_readme(readme_path: str | Path, sources: Mapping[str, str | Path]) ->
     for name, json_path in sources.items():
         try:
             table = render(name, load_rows(json_path))
+            env = bench_env.load(json_path)
+            if env is not None:
+                table += "\n\n" + bench_env.describe(env)
         except ValueError as e:
             msg = str(e)
             raise ValueError(msg if msg.startswith(str(json_path)) else f"{json_path}: {msg}") from e

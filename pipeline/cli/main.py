@@ -478,11 +478,15 @@ def bench(
 
         console.print(rows_table(f"bench {name}", rows))
     if json_out is not None:  # after the table: a failed write must not hide the results
+        from pipeline.bench.environment import environment, sidecar_path
+
+        env_out = sidecar_path(json_out)
         try:
             json_out.write_text(json.dumps(rows, indent=1, default=_json_default))
+            env_out.write_text(json.dumps(environment(), indent=1))
         except OSError as e:
             _fail(f"--json {json_out}: could not write the rows ({e.strerror or e}); the table above has them")
-        console.print(f"rows written to {json_out}")
+        console.print(f"rows written to {json_out}, what they were measured with to {env_out}")
 
 
 def _json_default(o: Any) -> Any:

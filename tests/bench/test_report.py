@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from pipeline.bench.environment import environment, sidecar_path
 from pipeline.bench.report import load_rows, main, render, update_readme
 
 
@@ -257,6 +258,33 @@ def test_bad_json_names_the_file(tmp_path: Path, content: str, message: str) -> 
         update_readme(readme, {"footage" if "session" in content else "fit": bad})
     assert str(e.value).startswith(str(bad))
     assert readme.read_text() == README
+
+
+def test_the_table_says_what_it_was_measured_with(tmp_path: Path) -> None:
+    """With ``rows.env.json`` beside the rows (as ``cornerman bench --json`` writes it) the
+    table ends with the versions and CPUs; without it, it does not; a broken one is an
+    error naming it, and nothing is written."""
+    readme = tmp_path / "README.md"
+    readme.write_text(README)
+    fit = _json(tmp_path / "fit.json", [{"cameras": 2, "method": "fit (anny)", "mpjpe_mm": 23.04}])
+    assert "Measured with" not in update_readme(readme, {"fit": fit})
+    env = environment()
+    env["packages"]["mujoco"] = "9.9.9"
+    side = sidecar_path(fit)
+    assert side.name == "fit.env.json"
+    side.write_text(json.dumps(env))
+    text = update_readme(readme, {"fit": fit})
+    line = f"Measured with Python {env['python']}, "
+    table = text.split("<!-- bench:fit -->\n")[1].split("<!-- /bench:fit -->")[0]
+    assert line in table and "mujoco 9.9.9" in table and f"; {env['cpus']} CPUs." in table
+    side.write_text('{"python": "3.11"}')
+    with pytest.raises(ValueError, match="not a bench environment") as e:
+        update_readme(readme, {"fit": fit})
+    assert str(e.value).startswith(str(fit))
+    side.write_text("[1,")
+    with pytest.raises(ValueError, match=r"fit\.env\.json: cannot read the bench environment"):
+        update_readme(readme, {"fit": fit})
+    assert readme.read_text() == text
 
 
 def test_missing_json_names_the_file(tmp_path: Path) -> None:

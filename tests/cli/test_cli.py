@@ -54,6 +54,8 @@ def test_bench_writes_its_rows_as_json(tmp_path: Path) -> None:
     rows = json.loads(out.read_text())
     assert rows and all(isinstance(row, dict) for row in rows)
     assert {row["scenario"] for row in rows} == {"2 cams"} and all(row["mpjpe_mm"] > 0 for row in rows)
+    env = json.loads((tmp_path / "rows.env.json").read_text())
+    assert env["packages"]["numpy"] == np.__version__ and env["cpus"] >= 1
     r = runner.invoke(app, ["bench", "triangulation", *opts, "--json", str(tmp_path / "no" / "rows.json")])
     assert r.exit_code == 2 and "does not exist" in r.output
     r = runner.invoke(app, ["bench", "triangulation", *opts, "--json", str(tmp_path)])
