@@ -7,21 +7,28 @@ A fully run session (the demo bout made as ``cornerman demo`` makes it, or a cop
 the stale stages, each reusing its previous artifacts (docs/design/incremental.md).
 
 One row per re-run stage: its incremental time, the full time of the same stage (from the
-session's manifests before the edit; ``full=true`` first re-runs every stage in full, forced,
-for a like-for-like time on the same machine state), their ratio, and from the manifests what
-was reused: reused frames, the first re-planned / re-fitted frame, the first changed input frame.
+session's manifests before the edit; ``full=true`` re-runs every stage of a copy in full,
+forced, just before the timed re-run, for a like-for-like time on the same machine state),
+their ratio, and from the manifests what was reused: reused frames, the first re-planned /
+re-fitted frame, the first changed input frame.
 
 The demo's identities are right, so a swap alone breaks them: the later frames become an
 input the physics cannot track. By default (``fix=true``) the bench times what an annotator's
 fix costs: the swap goes in first as a tracking error (run, not timed), then a second,
 identical swap undoes it (``SwapIdentities`` twice is the identity) and that re-run is timed
 against the full run of the right identities. ``fix=false`` times the breaking swap itself.
+
+The wall times of identical re-runs vary by up to about 20 % on a shared 2-core machine.
+``repeat=N`` times the edit's re-run N times, each on a fresh copy of the session as it was
+just before it (with ``full=true``, each after a forced full re-run of another copy, so both
+see the same machine state), and reports the median, with every run's time beside it.
 """
 
 from __future__ import annotations
 
 import logging
 import shutil
+import statistics
 import tempfile
 import time
 from pathlib import Path
@@ -75,23 +82,29 @@ def apply_swap(session_dir: Path, frame: int, camera: str, person_a: int, person
     return CONSUMED_BY[edit.kind]
 
 
-def _stage_rows(before: dict[str, Any], reports: list[Any]) -> list[dict[str, Any]]:
-    """One row per stage that ran after the edit: incremental vs full seconds and what the
-    stage's manifest metrics say it reused. ``before``: stage -> (duration_s, metrics) of the
-    full run."""
+def _stage_rows(full_runs: list[dict[str, float]], runs: list[list[Any]]) -> list[dict[str, Any]]:
+    """One row per stage that ran after the edit: the median of its incremental seconds over
+    ``runs`` (each run's stage reports) against the median of its full seconds over
+    ``full_runs`` (stage -> duration_s of a full run), and what the last run's manifest metrics
+    say it reused; then the sum over the stages (of the medians)."""
     rows: list[dict[str, Any]] = []
-    for r in reports:
+    for r in runs[-1]:
         if r.action != "ran":
             continue
-        full_s = float(before[r.stage][0]) if r.stage in before else float("nan")
+        inc_runs = [float(x.duration_s) for run in runs for x in run if x.stage == r.stage and x.action == "ran"]
+        full_list = [f[r.stage] for f in full_runs if r.stage in f]
+        inc_s = statistics.median(inc_runs)
+        full_s = statistics.median(full_list) if full_list else float("nan")
         m = r.metrics
         frm = next((int(m[k]) for k in FROM_FRAME_KEYS if k in m), -1)
         rows.append(
             {
                 "stage": r.stage,
-                "incremental_s": round(float(r.duration_s), 2),
+                "incremental_s": round(inc_s, 2),
                 "full_s": round(full_s, 2),
-                "ratio": round(float(r.duration_s) / full_s, 3) if full_s > 0 else float("nan"),
+                "ratio": round(inc_s / full_s, 3) if full_s > 0 else float("nan"),
+                "incremental_runs_s": [round(v, 2) for v in inc_runs],
+                "full_runs_s": [round(v, 2) for v in full_list],
                 "reused_frames": int(m.get("reused_frames", -1)),
                 "recomputed_from_frame": frm,
                 "first_changed_input_frame": int(m.get("first_changed_input_frame", -1)),
@@ -124,15 +137,18 @@ def run_bench(
     seed: int = 0,
     keep: str | None = None,
     fix: bool = True,
+    repeat: int = 1,
 ) -> list[dict[str, Any]]:
     """Rows: one per stage re-run after the swap, then their sum (see the module docstring).
 
     session: a fully run session folder to copy (default: make the demo bout of ``frames``
     frames, ``cameras`` cameras, ``seed``); frame (>= 0), camera: where the swap starts;
-    person_a, person_b: the swapped persons; full: re-run every stage in full first for the
-    full times; keep: copy the edited session there afterwards (a folder that must not exist);
+    person_a, person_b: the swapped persons; full: time a forced full re-run of a copy before
+    each timed re-run (else the full times are the session's manifests); keep: copy the
+    edited session there afterwards (a folder that must not exist);
     fix: time the fix of a swap made first as a tracking error (default: what issue 38's
-    target names, an identity fix), else the swap itself.
+    target names, an identity fix), else the swap itself; repeat (>= 1): how many times the
+    re-run (and with ``full``, the forced full run) is timed, each on a fresh copy (medians).
     """
     from pipeline.artifacts.store import ArtifactStore
     from pipeline.runner import STAGE_ORDER
@@ -145,6 +161,7 @@ def run_bench(
         ("frames", frames),
         ("cameras", cameras),
         ("seed", seed),
+        ("repeat", repeat),
     ):
         if isinstance(v, bool) or not isinstance(v, int):
             raise ValueError(f"{name}={v!r}: must be an integer")
@@ -153,20 +170,18 @@ def run_bench(
             raise ValueError(f"{name}={flag!r}: must be true or false")
     if frame < 0:
         raise ValueError(f"frame={frame}: must be >= 0")
+    if repeat < 1:
+        raise ValueError(f"repeat={repeat}: must be >= 1")
     if keep is not None and Path(keep).exists():
         raise ValueError(f"keep={keep}: already exists; give a new folder")
     with tempfile.TemporaryDirectory(prefix="cornerman-incremental-") as tmp:
         s = _full_session(Path(tmp), session, frames, cameras, seed)
-        if full:
-            t0 = time.perf_counter()
-            run_stages(s, force=True)
-            log.info("full forced re-run: %.1f s", time.perf_counter() - t0)
         store = ArtifactStore(s)
-        before: dict[str, Any] = {}
+        manifests: dict[str, float] = {}
         for name in STAGE_ORDER:
             m = store.manifest(name)
             if m is not None:
-                before[name] = (m.duration_s, m.metrics)
+                manifests[name] = m.duration_s
         first = apply_swap(s, frame, camera, person_a, person_b)
         log.info("swap at frame %d in %s: stale from %s", frame, camera, first)
         if fix:
@@ -174,19 +189,35 @@ def run_bench(
             run_stages(s)
             log.info("the swap as a tracking error: %.1f s; now the fix", time.perf_counter() - t0)
             apply_swap(s, frame, camera, person_a, person_b)
-        reports = run_stages(s)
+        full_runs: list[dict[str, float]] = [] if full else [manifests]
+        runs: list[list[Any]] = []
+        timed = s
+        for i in range(repeat):
+            if full:
+                forced = Path(tmp) / f"full{i}"
+                shutil.copytree(s, forced, symlinks=True)
+                t0 = time.perf_counter()
+                full_runs.append({r.stage: float(r.duration_s) for r in run_stages(forced, force=True) if r.action == "ran"})
+                log.info("full forced re-run %d/%d: %.1f s", i + 1, repeat, time.perf_counter() - t0)
+                shutil.rmtree(forced)
+            if repeat > 1:
+                timed = Path(tmp) / f"timed{i}"
+                shutil.rmtree(Path(tmp) / f"timed{i - 1}", ignore_errors=True)
+                shutil.copytree(s, timed, symlinks=True)
+            runs.append(run_stages(timed))
+            log.info("timed re-run %d/%d done", i + 1, repeat)
         edit = f"{'fix of an identity swap' if fix else 'identity swap'} at frame {frame} in {camera}"
-        rows = [{**r, "edit": edit} for r in _stage_rows(before, reports)]
+        rows = [{**r, "edit": edit} for r in _stage_rows(full_runs, runs)]
         if keep is not None:
-            shutil.copytree(s, keep, symlinks=True)
+            shutil.copytree(timed, keep, symlinks=True)
     return rows
-
 
 COLUMNS = (
     ("stage", "stage"),
     ("incremental_s", "incr s"),
     ("full_s", "full s"),
     ("ratio", "ratio"),
+    ("incremental_runs_s", "incr runs s"),
     ("reused_frames", "reused frames"),
     ("recomputed_from_frame", "from frame"),
     ("first_changed_input_frame", "1st changed input"),
@@ -211,6 +242,11 @@ def print_table(rows: list[dict[str, Any]]) -> None:
         cells = []
         for key, _ in COLUMNS:
             v = r.get(key, "")
-            cells.append(f"{v:.3g}" if key == "ratio" and isinstance(v, float) else str(v))
+            if key == "ratio" and isinstance(v, float):
+                cells.append(f"{v:.3g}")
+            elif isinstance(v, list):
+                cells.append(" ".join(f"{x:g}" for x in v))
+            else:
+                cells.append(str(v))
         table.add_row(*cells)
     Console(width=max(Console().width, 200)).print(table)

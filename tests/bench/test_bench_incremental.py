@@ -119,6 +119,28 @@ def test_options_of_the_wrong_type_are_refused_before_any_work(source: Path) -> 
         run_bench(session=str(source), frame="abc")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="full='yes': must be true or false"):
         run_bench(session=str(source), full="yes")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="repeat=0: must be >= 1"):
+        run_bench(session=str(source), repeat=0)
+
+
+def test_repeat_reports_the_median_of_every_run(source: Path, tmp_path: Path) -> None:
+    """``repeat=3, full=true``: three forced full runs and three timed re-runs, each on its
+    own copy of the fixed session; the row's times are the medians of the listed runs, and
+    the kept session is the last timed copy."""
+    kept = tmp_path / "kept"
+    rows = run_bench(session=str(source), frame=EDIT_FRAME, camera="cam2", keep=str(kept), repeat=3, full=True)
+    for r in rows[:-1]:
+        assert len(r["incremental_runs_s"]) == 3 and len(r["full_runs_s"]) == 3
+        assert r["incremental_s"] == pytest.approx(sorted(r["incremental_runs_s"])[1], abs=0.006)
+        assert r["full_s"] == pytest.approx(sorted(r["full_runs_s"])[1], abs=0.006)
+    # The forced full runs re-run every stage, the timed ones only the stale stages.
+    assert [r["stage"] for r in rows] == ["associate", "triangulate", "fit", "physics", "all re-run stages"]
+    m = ArtifactStore(kept).manifest("physics")
+    assert m is not None
+    (phys,) = [r for r in rows if r["stage"] == "physics"]
+    assert phys["incremental_runs_s"][-1] == pytest.approx(m.duration_s, abs=0.006)
+    assert phys["incremental"] == str(m.metrics.get("incremental", ""))
+    assert len(load_annotations(kept / "annotations.json")) == 2
 
 
 def test_fix_false_times_the_breaking_swap(source: Path, tmp_path: Path) -> None:
