@@ -68,8 +68,8 @@ def describe(env: dict[str, Any]) -> str:
 
 def load(json_path: str | Path) -> dict[str, Any] | None:
     """The environment beside a bench's ``--json`` file, or None when there is none (a file
-    written before environments were recorded). ``ValueError`` naming the file when it
-    cannot be read."""
+    written before environments were recorded). ``ValueError`` naming the sidecar when it
+    cannot be read or is not what ``environment()`` writes."""
     side = sidecar_path(json_path)
     if not side.is_file():
         return None
@@ -79,4 +79,8 @@ def load(json_path: str | Path) -> dict[str, Any] | None:
         raise ValueError(f"{side}: cannot read the bench environment: {e}") from e
     if not isinstance(env, dict):
         raise ValueError(f"{side}: expected a JSON object, got {type(env).__name__}")
+    try:
+        describe(env)
+    except ValueError as e:
+        raise ValueError(f"{side}: {e}") from e
     return env

@@ -323,7 +323,8 @@ def update_readme(readme_path: str | Path, sources: Mapping[str, str | Path]) ->
                 table += "\n\n" + bench_env.describe(env)
         except ValueError as e:
             msg = str(e)
-            raise ValueError(msg if msg.startswith(str(json_path)) else f"{json_path}: {msg}") from e
+            named = msg.startswith((str(json_path), str(bench_env.sidecar_path(json_path))))
+            raise ValueError(msg if named else f"{json_path}: {msg}") from e
         text = replace_between(text, name, table, str(readme))
     _write_atomic(readme, text)
     return text

@@ -481,11 +481,14 @@ def bench(
         from pipeline.bench.environment import environment, sidecar_path
 
         env_out = sidecar_path(json_out)
-        try:
-            json_out.write_text(json.dumps(rows, indent=1, default=_json_default))
-            env_out.write_text(json.dumps(environment(), indent=1))
-        except OSError as e:
-            _fail(f"--json {json_out}: could not write the rows ({e.strerror or e}); the table above has them")
+        for path, text, what in (
+            (json_out, json.dumps(rows, indent=1, default=_json_default), "the rows"),
+            (env_out, json.dumps(environment(), indent=1), "what they were measured with"),
+        ):
+            try:
+                path.write_text(text)
+            except OSError as e:
+                _fail(f"--json {json_out}: could not write {what} to {path} ({e.strerror or e}); the table above has the rows")
         console.print(f"rows written to {json_out}, what they were measured with to {env_out}")
 
 

@@ -56,6 +56,11 @@ def test_bench_writes_its_rows_as_json(tmp_path: Path) -> None:
     assert {row["scenario"] for row in rows} == {"2 cams"} and all(row["mpjpe_mm"] > 0 for row in rows)
     env = json.loads((tmp_path / "rows.env.json").read_text())
     assert env["packages"]["numpy"] == np.__version__ and env["cpus"] >= 1
+    (tmp_path / "blocked.env.json").mkdir()  # the sidecar cannot be written: said, rows kept
+    r = runner.invoke(app, ["bench", "triangulation", *opts, "--json", str(tmp_path / "blocked.json")])
+    assert r.exit_code == 2 and "could not write what they were measured with" in r.output
+    kept = json.loads((tmp_path / "blocked.json").read_text())
+    assert [(k["method"], k["mpjpe_mm"]) for k in kept] == [(k["method"], k["mpjpe_mm"]) for k in rows]
     r = runner.invoke(app, ["bench", "triangulation", *opts, "--json", str(tmp_path / "no" / "rows.json")])
     assert r.exit_code == 2 and "does not exist" in r.output
     r = runner.invoke(app, ["bench", "triangulation", *opts, "--json", str(tmp_path)])
