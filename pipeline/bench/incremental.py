@@ -18,7 +18,8 @@ fix costs: the swap goes in first as a tracking error (run, not timed), then a s
 identical swap undoes it (``SwapIdentities`` twice is the identity) and that re-run is timed
 against the full run of the right identities. ``fix=false`` times the breaking swap itself.
 
-The wall times of identical re-runs vary by up to about 20 % on a shared 2-core machine.
+The wall times of identical re-runs can differ by a third on a shared 2-core machine (three
+fixes at frame 270 of the demo took 16.0, 22.6 and 25.3 s).
 ``repeat=N`` times the edit's re-run N times, each on a fresh copy of the session as it was
 just before it (with ``full=true``, each after a forced full re-run of another copy, so both
 see the same machine state), and reports the median, with every run's time beside it.
