@@ -201,9 +201,10 @@ def run_bench(
                 full_runs.append({r.stage: float(r.duration_s) for r in run_stages(forced, force=True) if r.action == "ran"})
                 log.info("full forced re-run %d/%d: %.1f s", i + 1, repeat, time.perf_counter() - t0)
                 shutil.rmtree(forced)
-            if repeat > 1:
+            if repeat > 1:  # a fresh copy each time; the last one is kept
+                if timed is not s:
+                    shutil.rmtree(timed)
                 timed = Path(tmp) / f"timed{i}"
-                shutil.rmtree(Path(tmp) / f"timed{i - 1}", ignore_errors=True)
                 shutil.copytree(s, timed, symlinks=True)
             runs.append(run_stages(timed))
             log.info("timed re-run %d/%d done", i + 1, repeat)
@@ -212,6 +213,7 @@ def run_bench(
         if keep is not None:
             shutil.copytree(timed, keep, symlinks=True)
     return rows
+
 
 COLUMNS = (
     ("stage", "stage"),

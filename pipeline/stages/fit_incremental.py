@@ -3,11 +3,12 @@
 After an edit at frame f, the fit's inputs (triangulated joints, associated 2D keypoints)
 change from about f on; the triangulation's smoother spreads a change a few frames back,
 by amounts that fade out. A re-run compares its gathered inputs with the previous run's
-(``FitCheckpoints``) frame by frame, within ``INPUT_TOL`` (0.5 mm for the 3D targets), and re-optimises only the changed
-frames, with ``FitConfig.incremental_margin_frames`` on each side (default 0: the temporal
-terms couple neighbours, and the kept neighbours in the context hold them), keeping every other frame, the
-shapes and the landmark offsets of the previous fit. The changed frames start as a fresh
-fit does (the previous pose may be another athlete's), the margin from the previous pose. The re-fit sees ``CONTEXT_FRAMES``
+(``FitCheckpoints``) frame by frame, within ``INPUT_TOL`` (0.5 mm for the 3D targets), and
+re-optimises only the changed frames, with ``FitConfig.incremental_margin_frames`` on each
+side (default 0: the temporal terms couple neighbours, and the kept neighbours in the
+context hold them), keeping every other frame, the shapes and the landmark offsets of the
+previous fit. The changed frames start as a fresh fit does (the previous pose may be
+another athlete's), the margin from the previous pose. The re-fit sees ``CONTEXT_FRAMES``
 kept frames on each side, so every temporal term of a re-optimised frame is in its loss.
 
 Pure numpy: no torch import here.
