@@ -205,8 +205,9 @@ def run_bench(
     pose2sim: str = FOOTAGE,
     views: bool | None = None,
     parry_prob: float = 0.0,
+    stances: str = "orthodox,southpaw",
 ) -> list[dict[str, Any]]:
-    """Rows: one per (3D source, camera count) over ``seeds``, then the Pose2Sim row.
+    """Rows: one per (stance, 3D source, camera count) over ``seeds``, then the Pose2Sim row.
 
     ``sources``: comma-separated among ``fit``, ``filtered``, ``gt``. ``cache_dir``: keep
     the 3D results there and reuse them (for tuning; they are keyed by seed, cameras,
@@ -216,7 +217,9 @@ def run_bench(
     None keeps the analyze stage's default for the 2D evidence of flattened punches, True /
     False turns it on / off (``ViewEvidenceConfig.enabled``). ``parry_prob``: the bouts'
     ``SyntheticConfig.parry_prob`` (0 to 1; > 0 scripts parries, scored in the parry columns,
-    and makes other bouts than the default seeds' usual ones).
+    and makes other bouts than the default seeds' usual ones). ``stances``: comma-separated
+    among ``orthodox`` and ``southpaw`` (the same bouts mirrored, ``SyntheticConfig.southpaw``:
+    the cameras see other sides of the boxers; rows say so in ``data``).
     """
     from pipeline.stages.analyze import AnalyzeInputs
     from pipeline.stages.analyze import run as analyze
@@ -227,21 +230,26 @@ def run_bench(
     if bad or not wanted:
         raise ValueError(f"bench analytics: sources must be among fit, filtered, gt; got {sources!r}")
     cams = (cameras,) if isinstance(cameras, int) else tuple(cameras)
+    names = [s.strip() for s in stances.split(",") if s.strip()]
+    if not names or set(names) - {"orthodox", "southpaw"}:
+        raise ValueError(f"bench analytics: stances must be among orthodox, southpaw; got {stances!r}")
+    lefty = [n == "southpaw" for n in names]
     cache = Path(cache_dir) if cache_dir else None
     cfg = _config(views)
     p2s_dir, why = pose2sim_session(pose2sim) if pose2sim else (None, "pose2sim is empty")
     if p2s_dir is None:  # before the synthetic bouts: say it now, not after minutes
         log.warning("bench analytics: Pose2Sim row skipped: %s", why)
-    totals: dict[tuple[str, int], dict[str, Any]] = {}
-    for n_cams in cams:
+    totals: dict[tuple[bool, str, int], dict[str, Any]] = {}
+    for southpaw, n_cams in ((sp, c) for sp in lefty for c in cams):
         for seed in seeds:
             t0 = time.perf_counter()
             bout = make_bout(SyntheticConfig(seed=int(seed), n_frames=int(n_frames), n_cameras=n_cams, variety=True,
-                                             parry_prob=float(parry_prob)))  # fmt: skip
+                                             parry_prob=float(parry_prob), southpaw=southpaw))  # fmt: skip
             made: dict[str, Keypoints3D] = {}
             tri: dict[str, Keypoints3D] = {}
             for src in ("raw", "filtered", *[w for w in wanted if w != "filtered"]):
-                key = f"kp_s{seed}_c{n_cams}_f{n_frames}{f'_pp{float(parry_prob):g}' if parry_prob else ''}_{src}"
+                tag = (f"_pp{float(parry_prob):g}" if parry_prob else "") + ("_sp" if southpaw else "")
+                key = f"kp_s{seed}_c{n_cams}_f{n_frames}{tag}_{src}"
 
                 def make(src: str = src, made: dict[str, Keypoints3D] = made, bout: Any = bout) -> Keypoints3D:
                     if src not in made:  # the triangulation alone unless the fit is asked for
@@ -262,17 +270,18 @@ def run_bench(
                     tracks=bout.tracks if real else None, association=bout.gt_association() if real else None,
                 )  # fmt: skip
                 s = score(bout.truth, analyze(inp, cfg).events)
-                tot = totals.setdefault((src, n_cams), {k: 0 for k in COUNT_KEYS} | {"speed_err_max": 0.0})
+                tot = totals.setdefault((southpaw, src, n_cams), {k: 0 for k in COUNT_KEYS} | {"speed_err_max": 0.0})
                 for k in COUNT_KEYS:
                     tot[k] += s[k]
                 tot["speed_err_max"] = max(tot["speed_err_max"], s["speed_err_max"])
-            log.info("bench analytics: seed %d, %d cameras: %.1f s", seed, n_cams, time.perf_counter() - t0)
+            log.info("bench analytics: seed %d, %d cameras%s: %.1f s", seed, n_cams, ", southpaw" if southpaw else "",
+                     time.perf_counter() - t0)  # fmt: skip
     rows: list[dict[str, Any]] = []
-    for (src, n_cams), tot in totals.items():
+    for (southpaw, src, n_cams), tot in totals.items():
         minutes = tot["frames"] / 50.0 / 60.0
         false = tot["detected"] - tot["matched"]
         rows.append(
-            {"data": f"synthetic ({src})", "cameras": n_cams, "seeds": ",".join(str(s) for s in seeds),
+            {"data": f"synthetic{', southpaw' if southpaw else ''} ({src})", "cameras": n_cams, "seeds": ",".join(str(s) for s in seeds),
              "frames": tot["frames"], "gt_punches": tot["gt_punches"], "detected": tot["detected"],
              "matched": tot["matched"], **rates(tot), "feints": tot["feints"], "feint_hits": tot["feint_hits"],
              "gt_blocks": tot["gt_blocks"], "gt_parries": tot["gt_parries"],

@@ -17,6 +17,7 @@ from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.synthetic import combos
 from pipeline.synthetic.choreo import Choreography, make_choreography
 from pipeline.synthetic.config import SyntheticConfig
+from pipeline.synthetic.mirror import mirror_feet, mirror_joints, mirror_truth
 from pipeline.synthetic.motion import boxer_arms, boxer_trunk, parry_contacts, punch_peak_speeds
 from pipeline.synthetic.occlusion import capsules, occluded
 from pipeline.synthetic.render2d import render_tracks
@@ -55,7 +56,9 @@ class SyntheticBout:
         occluded: (dets, 23) bool, joint hidden behind a body volume in that view.
         bystander_xyz_m: (frames, 23, 3) the bystander's joints (empty (0, 23, 3) if none).
         punch_peak_speed_mps: (punches,) measured peak wrist speed of every scripted punch.
-        choreography: the script (phases, punches, slips, intents).
+        choreography: the script (phases, punches, slips, intents), written for orthodox
+            boxers: with ``SyntheticConfig.southpaw`` its ``Punch.hand`` is the mirror's
+            other hand (``truth`` has the hands as performed).
         truth: the labelled events (punches with type and outcome, feints, slips and
             ducks, clinch frames; ``pipeline.synthetic.truth``).
     """
@@ -156,6 +159,9 @@ def make_bout(cfg: SyntheticConfig = SyntheticConfig()) -> SyntheticBout:
     ch = make_choreography(cfg.n_frames, cfg.fps, cfg.clinch, rng_choreo, vary)
     ch, boxers, contact, speeds = _calibrated_boxers(ch, bodies, cfg.fps)
     boxers = separate_persons(boxers, _planted_joints(contact))
+    truth = record_truth(ch, boxers, speeds, cfg.fps)
+    if cfg.southpaw:  # the script's orthodox bout in a mirror (``mirror``): truth recorded before
+        boxers, contact, truth = mirror_joints(boxers), mirror_feet(contact), mirror_truth(truth)
     rig = make_rig(cfg.n_cameras, cfg.image_size_wh, cfg.fps, cfg.distortion, rng_rig)
 
     persons = [boxers[:, 0], boxers[:, 1]]
@@ -210,5 +216,5 @@ def make_bout(cfg: SyntheticConfig = SyntheticConfig()) -> SyntheticBout:
         bystander_xyz_m=bystander,
         punch_peak_speed_mps=speeds,
         choreography=ch,
-        truth=record_truth(ch, boxers, speeds, cfg.fps),
+        truth=truth,
     )

@@ -55,6 +55,10 @@ class SyntheticConfig:
     parried instead (the defender's glove slaps it sideways on its way out; needs
     ``variety``). From its own random stream: every other choice stays that of 0."""
 
+    southpaw: bool = False
+    """Both boxers southpaw (lead = right): the whole bout mirrored in the plane x = 0 with
+    left and right exchanged (``pipeline.synthetic.mirror``). False: two orthodox boxers."""
+
     image_size_wh: tuple[int, int] = (1280, 720)
     """Image width and height in pixels (same for every camera)."""
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from pipeline.bench.analytics import run_bench
 from pipeline.bench.analytics_score import match_punches, rates, score
@@ -34,5 +35,13 @@ def test_scores_of_perfect_and_shifted_events() -> None:
 
 def test_run_bench_on_ground_truth_joints() -> None:
     rows = run_bench(seeds=[0], n_frames=300, cameras=4, sources="gt", pose2sim="")
-    assert len(rows) == 1 and rows[0]["data"] == "synthetic (gt)"
+    assert [r["data"] for r in rows] == ["synthetic (gt)", "synthetic, southpaw (gt)"]
     assert rows[0]["recall"] >= 0.8 and rows[0]["clinch_f1"] >= 0.8
+    # The southpaw bout is the same bout in a mirror: on its ground-truth joints every score is the same.
+    scores = ("gt_punches", "detected", "matched", "precision", "recall", "type_acc_pct", "outcome_acc_pct", "clinch_f1")
+    assert {k: rows[1][k] for k in scores} == {k: rows[0][k] for k in scores}
+
+
+def test_run_bench_refuses_an_unknown_stance() -> None:
+    with pytest.raises(ValueError, match="stances must be among orthodox, southpaw; got 'lefty'"):
+        run_bench(seeds=[0], cameras=4, sources="gt", pose2sim="", stances="lefty")
