@@ -281,7 +281,8 @@ def run_bench(
         minutes = tot["frames"] / 50.0 / 60.0
         false = tot["detected"] - tot["matched"]
         rows.append(
-            {"data": f"synthetic{', southpaw' if southpaw else ''} ({src})", "cameras": n_cams, "seeds": ",".join(str(s) for s in seeds),
+            {"data": f"synthetic{', southpaw' if southpaw else ''} ({src})", "cameras": n_cams,
+             "seeds": ",".join(str(s) for s in seeds),
              "frames": tot["frames"], "gt_punches": tot["gt_punches"], "detected": tot["detected"],
              "matched": tot["matched"], **rates(tot), "feints": tot["feints"], "feint_hits": tot["feint_hits"],
              "gt_blocks": tot["gt_blocks"], "gt_parries": tot["gt_parries"],
