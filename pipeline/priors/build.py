@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.schema.joints import COCO17_FEET, flip_pairs
+from pipeline.schema.joints import COCO17_FEET, mirror_joints
 
 logger = logging.getLogger(__name__)
 
@@ -253,15 +253,6 @@ def keypoint_weights() -> np.ndarray:
     return np.array([_KEYPOINTS[name][2] for name in COCO17_FEET])
 
 
-def mirror_keypoints(kp: np.ndarray) -> np.ndarray:
-    """Left/right mirror image (x -> -x, left and right joints swapped) of (..., 23, 3)."""
-    out = kp.copy()
-    out[..., 0] *= -1
-    for a, b in flip_pairs(COCO17_FEET):
-        out[..., [a, b], :] = out[..., [b, a], :]
-    return out
-
-
 def retarget(
     kp_m: np.ndarray, weights: np.ndarray, iters: int = 300, w_3d: float = 1000.0
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -311,7 +302,7 @@ def retarget_clips(clips: tuple[str, ...] = DEFAULT_CLIPS) -> tuple[np.ndarray, 
     kps, labels = [], []
     for name in clips:
         kp = clip_keypoints(load_clip(name), skeleton)
-        kps += [kp, mirror_keypoints(kp)]
+        kps += [kp, mirror_joints(kp)]
         labels += [name] * kp.shape[0] + [f"{name}_mirror"] * kp.shape[0]
     pose, resid = retarget(np.concatenate(kps), keypoint_weights())
     return pose, labels, resid

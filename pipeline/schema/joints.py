@@ -10,6 +10,8 @@ See ``pipeline/schema/CONVENTIONS.md`` for units and frames.
 
 from __future__ import annotations
 
+import numpy as np
+
 COCO17: tuple[str, ...] = (
     "nose",
     "left_eye",
@@ -108,4 +110,15 @@ def flip_pairs(names: tuple[str, ...]) -> list[tuple[int, int]]:
             r = "right_" + n[len("left_") :]
             if r in names:
                 out.append((i, names.index(r)))
+    return out
+
+
+def mirror_joints(xyz: np.ndarray, names: tuple[str, ...] = COCO17_FEET) -> np.ndarray:
+    """Mirror image of (..., len(names), 3) joints: x -> -x and every ``left_*`` joint
+    exchanged with its ``right_*`` twin (``flip_pairs``); a new array of the same dtype."""
+    order = np.arange(len(names))
+    for i, j in flip_pairs(names):
+        order[i], order[j] = j, i
+    out = np.asarray(xyz)[..., order, :].copy()
+    out[..., 0] *= -1
     return out

@@ -12,12 +12,12 @@ import numpy as np
 from pipeline.schema.association import Association
 from pipeline.schema.camera import CameraRig
 from pipeline.schema.detections import Tracks2D
-from pipeline.schema.joints import COCO17_FEET
+from pipeline.schema.joints import COCO17_FEET, mirror_joints
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.synthetic import combos
 from pipeline.synthetic.choreo import Choreography, make_choreography
 from pipeline.synthetic.config import SyntheticConfig
-from pipeline.synthetic.mirror import mirror_feet, mirror_joints, mirror_truth
+from pipeline.synthetic.mirror import mirror_feet, mirror_truth
 from pipeline.synthetic.motion import boxer_arms, boxer_trunk, parry_contacts, punch_peak_speeds
 from pipeline.synthetic.occlusion import capsules, occluded
 from pipeline.synthetic.render2d import render_tracks

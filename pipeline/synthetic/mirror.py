@@ -1,10 +1,10 @@
 """Southpaw bouts: the whole bout seen in a mirror (``SyntheticConfig.southpaw``).
 
 The script is written for two orthodox boxers (lead = left). Reflecting every joint of both
-boxers in the world plane x = 0 and swapping the left and right labels turns each of them
-into a southpaw (lead = right, right foot in front) without re-scripting anything: a
-reflection keeps every distance, so every contact, outcome, clinch and strike frame of the
-script holds in the mirror too. Only the hands change names: a jab is thrown with the right
+boxers in the world plane x = 0 and swapping the left and right labels
+(``schema.joints.mirror_joints``) turns each of them into a southpaw (lead = right, right foot
+in front) without re-scripting anything: a reflection keeps every distance, so every contact,
+outcome, clinch and strike frame of the script holds in the mirror too. Only the hands change names: a jab is thrown with the right
 hand. Both boxers are southpaws; an orthodox-against-southpaw bout cannot be made this way.
 """
 
@@ -15,23 +15,7 @@ import dataclasses
 import numpy as np
 
 from pipeline.schema.analytics import HANDS
-from pipeline.schema.joints import COCO17_FEET, flip_pairs
 from pipeline.synthetic.truth import BoutTruth
-
-
-def _swap_order(names: tuple[str, ...]) -> np.ndarray:
-    """Index array that exchanges every ``left_*`` joint of ``names`` with its ``right_*`` twin."""
-    order = np.arange(len(names))
-    for i, j in flip_pairs(names):
-        order[i], order[j] = j, i
-    return order
-
-
-def mirror_joints(xyz_m: np.ndarray) -> np.ndarray:
-    """(..., 23, 3) ``COCO17_FEET`` joints reflected in x = 0 with left and right exchanged."""
-    out = np.array(xyz_m, dtype=float, copy=True)[..., _swap_order(COCO17_FEET), :]
-    out[..., 0] *= -1.0
-    return out
 
 
 def mirror_feet(contact: np.ndarray) -> np.ndarray:

@@ -167,8 +167,9 @@ def test_fit_with_prior_not_worse_than_without(body) -> None:  # noqa: ANN001
 
 @needs_pybullet
 def test_deepmimic_keypoints_and_mirror() -> None:
-    from pipeline.priors.build import clip_keypoints, load_clip, load_skeleton, mirror_keypoints
+    from pipeline.priors.build import clip_keypoints, load_clip, load_skeleton
     from pipeline.schema.joints import COCO17_FEET
+    from pipeline.schema.joints import mirror_joints as mirror_keypoints
 
     kp = clip_keypoints(load_clip("walk"), load_skeleton())
     j = {n: COCO17_FEET.index(n) for n in COCO17_FEET}

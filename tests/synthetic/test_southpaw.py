@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from pipeline.schema.analytics import STANCE_CODES
-from pipeline.schema.joints import COCO17_FEET
+from pipeline.schema.joints import COCO17_FEET, mirror_joints
 from pipeline.stages.analyze import AnalyzeConfig, AnalyzeInputs
 from pipeline.stages.analyze import run as analyze
 from pipeline.synthetic import SyntheticBout, SyntheticConfig, make_bout
-from pipeline.synthetic.mirror import mirror_feet, mirror_joints
+from pipeline.synthetic.mirror import mirror_feet
 
 SEED = 14
 """A varied bout with punches of both hands, lead and rear (held-out seed of bench analytics)."""
