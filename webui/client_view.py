@@ -102,7 +102,7 @@ class ClientView:
         """Layers out of date: drawn dimmed (3D) or grey (2D labels) until their stage is rewritten."""
         self.timeline = make_timeline(as_server, data.n_frames)
         everyone = [(p, palette.name(p)) for p in (data.person_ids or [0, 1])]
-        event_rows = make_event_rows(scope, everyone, data.n_frames)
+        event_rows = make_event_rows(scope, everyone, data.n_frames, data.fps)
         tabs = scope.gui.add_tab_group()
         with tabs.add_tab("Cameras"):
             self.views = make_views(scope, data.camera_names, app.image_sizes())
@@ -113,8 +113,8 @@ class ClientView:
                 self.annotate = make_annotate(scope, data.camera_names, athletes, data.n_frames)
         with tabs.add_tab("Plots"):
             self.plots = make_plots(as_server, compute_series(data, app.default_source()), palette)
-        self.plot_cursor = PlotCursor(plot_charts(self.plots))
-        """The current-frame line on this view's plots (``webui.panels.plot_cursor``)."""
+        self.plot_cursor = PlotCursor((*plot_charts(self.plots), event_rows.chart))
+        """The current-frame line on this view's plots and event chart (``webui.panels.plot_cursor``)."""
         with tabs.add_tab("Events"):
             self.events = make_events(scope, [n for _, n in everyone], event_rows)
         with tabs.add_tab("Display"):
@@ -125,7 +125,7 @@ class ClientView:
         self.persons = PersonsScene(scope, data, palette, app.body_cache, app.physics_geoms)
         self.persons.build()
         set_problems(self.timeline, app.problems, data.n_frames)
-        set_events(self.events, app.events_view(), data.n_frames)
+        set_events(self.events, app.events_view(), data.n_frames, data.fps)
         self.show_layers(app.layer_states(), render=False)
         self._wire()
         self._entries: list[dict] = []
@@ -318,7 +318,7 @@ class ClientView:
             if self.annotate is not None:
                 rename_annotate(self.annotate, {p: app.palette.name(p) for p in self.annotate.assign})
             update_plots(self.plots, compute_series(app.data, self.opts.source), app.palette)
-            set_events(self.events, app.events_view(), app.data.n_frames)
+            set_events(self.events, app.events_view(), app.data.n_frames, app.data.fps)
         self.request_render()
 
     def on_reload(self, states: dict[str, str] | None = None) -> None:
@@ -334,7 +334,7 @@ class ClientView:
             self.persons.build()
             self.display.source.options = source_options(list(data.keypoints))
             set_problems(self.timeline, app.problems, data.n_frames)
-            set_events(self.events, app.events_view(), data.n_frames)
+            set_events(self.events, app.events_view(), data.n_frames, data.fps)
             update_plots(self.plots, compute_series(data, self.opts.source), app.palette)
         self.request_render()
 
@@ -351,7 +351,8 @@ class ClientView:
         # Pausing draws the exact frame again with full-size images.
         tl.play.on_update(lambda _: self.request_render())
 
-        wire_events(self.events, app.events_view, lambda: self.frame, self.set_frame, lambda: app.data.n_frames)
+        wire_events(self.events, app.events_view, lambda: self.frame, self.set_frame, lambda: app.data.n_frames,
+                    lambda: app.data.fps)
         wire_export(self.export, self.scope, app.session_dir,
                     lambda: {p: app.palette.name(p) for p in app.data.person_ids}, lambda: self.opts.source)
 

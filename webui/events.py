@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.schema.analytics import EVADE_KINDS, AthleteSeries, BoutEvents
+from pipeline.schema.analytics import EVADE_KINDS, OUTCOMES, AthleteSeries, BoutEvents
 from pipeline.stages.analyze.summary import summarize
 
 ALL = "All"
@@ -40,6 +40,10 @@ LEGEND = (
     + f"; {HUMAN_MARK} set or added by an annotator."
 )  # fmt: skip
 """The legend of the marks, shown in the Events tab and the rows' hints."""
+DEFENCE_SERIES = "defence"
+"""The event chart's series of defence events (beside one series per punch outcome)."""
+DEFENCE_COLOR = "#6a3d9a"
+"""Colour (CSS hex) of defence points on the event chart."""
 
 
 def _none(rows: np.ndarray | None) -> np.ndarray:
@@ -182,6 +186,29 @@ class EventsView:
         if len(out) > MAX_MARKS:
             out = [out[k] for k in np.linspace(0, len(out) - 1, MAX_MARKS).astype(int).tolist()]
         return tuple(out)
+
+    def chart_rows(
+        self, pids: list[int], n_frames: int, rows: np.ndarray | None = None, defence: np.ndarray | None = None
+    ) -> dict[str, np.ndarray]:
+        """The event chart's points: for each outcome of ``OUTCOMES`` and for ``DEFENCE_SERIES``, an
+        (n_frames,) array holding the row of the athlete (1 for ``pids[0]``, 2 for ``pids[1]``, …) at
+        the strike frame of each of his punches with that outcome (of ``rows`` when given), and at
+        the peak of each defence row where he defended (of ``defence``), NaN elsewhere."""
+        out = {k: np.full(max(int(n_frames), 0), np.nan) for k in (*OUTCOMES, DEFENCE_SERIES)}
+        ev = self.events
+        if ev is None:
+            return out
+        row_of = {int(p): k + 1.0 for k, p in enumerate(pids)}
+        sel = np.arange(ev.n_punches) if rows is None else rows
+        for i in sel.tolist():
+            f, r = int(ev.punch_peak_frame[i]), row_of.get(int(ev.punch_person[i]))
+            if r is not None and 0 <= f < n_frames:
+                out[str(ev.punch_outcome[i])][f] = r
+        for j in (np.arange(ev.n_evades) if defence is None else defence).tolist():
+            f, r = int(ev.evade_peak_frame[j]), row_of.get(int(ev.evade_person[j]))
+            if r is not None and 0 <= f < n_frames:
+                out[DEFENCE_SERIES][f] = r
+        return out
 
     def picker_labels(self, rows: np.ndarray, defence: np.ndarray) -> tuple[str, ...]:
         """Labels of the punches ``rows`` and the defence rows ``defence`` in frame order (the picker)."""

@@ -22,10 +22,7 @@ from matplotlib.ticker import MaxNLocator, MultipleLocator
 
 from pipeline.report.data import ReportData, ReportOptions
 from pipeline.report.svg import Marks, figure, inline_svg
-from pipeline.schema.analytics import OUTCOMES
-
-OUTCOME_COLORS: dict[str, str] = {"landed": "#1a7f37", "blocked": "#e0a100", "missed": "#8c8c8c"}
-"""Colour of each punch outcome in every chart."""
+from pipeline.schema.analytics import OUTCOME_COLORS, OUTCOMES
 
 CLINCH_COLOR = "#9a9a9a"
 """Colour of the clinch bands on the work-rate timeline."""

@@ -32,6 +32,8 @@ TARGETS: tuple[str, ...] = ("head", "body", "guard", "none")
 OUTCOMES: tuple[str, ...] = ("landed", "blocked", "missed")
 """landed: the glove reaches the head or trunk; blocked: it stops on the gloves or arms;
 missed: it touches neither."""
+OUTCOME_COLORS: dict[str, str] = {"landed": "#1a7f37", "blocked": "#e0a100", "missed": "#8c8c8c"}
+"""Colour (CSS hex) of each punch outcome wherever one is drawn: the report's charts, the viewer."""
 EVADE_KINDS: tuple[str, ...] = ("slip", "duck", "block", "parry")
 """Defence against one punch (``BoutEvents.evade_*`` rows). slip: the head leaves the punch's
 line sideways; duck: it drops under it; block: the punch's glove stops on the defender's glove

@@ -14,9 +14,8 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.report import ReportData, ReportOptions, load_report_data, render_report, slice_bout
-from pipeline.report.charts import OUTCOME_COLORS
 from pipeline.report.html import SUMMARY_ROWS
-from pipeline.schema.analytics import OUTCOMES, PUNCH_TYPES, BoutEvents
+from pipeline.schema.analytics import OUTCOME_COLORS, OUTCOMES, PUNCH_TYPES, BoutEvents
 from pipeline.stages.analyze import AnalyzeOutput, summarize
 from tests.report.fixtures import write_analysed_bout
 from tests.report.helpers import Element, number, parse, svgs

@@ -15,6 +15,7 @@ from pipeline.geometry.projection import project
 from pipeline.geometry.rotations import look_at_T_world_cam
 from pipeline.io.calibration import save_toml
 from pipeline.schema import COCO17, Association, CameraRig, Keypoints3D, SessionConfig, Tracks2D, save_npz
+from pipeline.schema.analytics import AthleteSeries, BoutEvents
 from pipeline.schema.results import PhysicsResult
 from pipeline.stages.evaluate import EvaluateConfig, EvaluateInputs
 from pipeline.stages.evaluate import run as evaluate
@@ -166,3 +167,30 @@ def wait_for(cond: Callable[[], object], timeout_s: float) -> bool:
         time.sleep(0.02)
     return bool(cond())
 
+
+
+def sample_events(n_frames: int) -> tuple[BoutEvents, AthleteSeries]:
+    """Three punches of athletes 0 and 1 (a landed jab at 6, a blocked cross at 15, a landed rear
+    hook at 28; 25 fps) and flat series over ``n_frames`` (>= 33) frames."""
+    ev = BoutEvents.empty(25.0, np.array([0, 1]))
+    ev = BoutEvents(**{
+        **ev.__dict__, "punch_person": np.array([0, 1, 0]), "punch_hand": np.array(["left", "right", "right"]),
+        "punch_type": np.array(["jab", "cross", "rear_hook"]), "punch_start_frame": np.array([3, 12, 24]),
+        "punch_peak_frame": np.array([6, 15, 28]), "punch_end_frame": np.array([9, 19, 32]),
+        "punch_peak_speed_mps": np.array([7.5, 8.0, 6.5]), "punch_extension": np.array([0.95, 0.9, 0.7]),
+        "punch_target": np.array(["head", "guard", "head"]), "punch_outcome": np.array(["landed", "blocked", "landed"]),
+        "punch_confidence": np.array([0.9, 0.8, 0.7]),
+    })  # fmt: skip
+    f = n_frames
+    series = AthleteSeries(
+        frame_indices=np.arange(f), fps=25.0, person_ids=np.array([0, 1]), valid=np.ones((f, 2), bool),
+        distance_m=np.full(f, 1.2), distance_valid=np.ones(f, bool), stance=np.ones((f, 2), np.int64),
+        stance_width_m=np.full((f, 2), 0.5), guard_height_m=np.zeros((f, 2, 2)), punches_per_min=np.zeros((f, 2)),
+    )  # fmt: skip
+    return ev, series
+
+
+def write_events(session_dir: Path, events: BoutEvents, series: AthleteSeries) -> None:
+    """Store ``events`` and ``series`` as the session's analyze artifact (on the filtered joints)."""
+    m = Manifest(stage="analyze", code_version="test", config={}, config_hash="0", inputs={}, metrics={"source": "filtered"})
+    ArtifactStore(session_dir).write(m, {"events": events, "series": series})

@@ -1,4 +1,4 @@
-"""The viewer's boxing events: per-athlete punch rows, filters, next / previous punch."""
+"""The viewer's boxing events: per-athlete punch rows, the event chart, filters, next / previous punch."""
 
 from __future__ import annotations
 
@@ -7,34 +7,14 @@ from pathlib import Path
 import numpy as np
 import viser
 
-from pipeline.artifacts import ArtifactStore, Manifest
-from pipeline.schema.analytics import AthleteSeries, BoutEvents
-from tests.webui.fixtures import build_session
+from tests.webui.fixtures import build_session, sample_events, wait_for, write_events
 from webui.app import ViewerApp
 from webui.events import EventsView
-
-
-def _events(n_frames: int) -> tuple[BoutEvents, AthleteSeries]:
-    ev = BoutEvents.empty(25.0, np.array([0, 1]))
-    ev = BoutEvents(**{
-        **ev.__dict__, "punch_person": np.array([0, 1, 0]), "punch_hand": np.array(["left", "right", "right"]),
-        "punch_type": np.array(["jab", "cross", "rear_hook"]), "punch_start_frame": np.array([3, 12, 24]),
-        "punch_peak_frame": np.array([6, 15, 28]), "punch_end_frame": np.array([9, 19, 32]),
-        "punch_peak_speed_mps": np.array([7.5, 8.0, 6.5]), "punch_extension": np.array([0.95, 0.9, 0.7]),
-        "punch_target": np.array(["head", "guard", "head"]), "punch_outcome": np.array(["landed", "blocked", "landed"]),
-        "punch_confidence": np.array([0.9, 0.8, 0.7]),
-    })  # fmt: skip
-    f = n_frames
-    series = AthleteSeries(
-        frame_indices=np.arange(f), fps=25.0, person_ids=np.array([0, 1]), valid=np.ones((f, 2), bool),
-        distance_m=np.full(f, 1.2), distance_valid=np.ones(f, bool), stance=np.ones((f, 2), np.int64),
-        stance_width_m=np.full((f, 2), 0.5), guard_height_m=np.zeros((f, 2, 2)), punches_per_min=np.zeros((f, 2)),
-    )  # fmt: skip
-    return ev, series
+from webui.panels.event_chart import SERIES_COLORS
 
 
 def test_events_view_filters_jumps_and_marks() -> None:
-    ev, series = _events(40)
+    ev, series = sample_events(40)
     v = EventsView(ev, series, {0: "Red", 1: "Blue"})
     assert v.matching().tolist() == [0, 1, 2]
     assert v.matching(athlete="Red", outcome="landed").tolist() == [0, 2]
@@ -56,9 +36,7 @@ def test_viewer_event_rows_filters_and_punch_buttons(tmp_path: Path, server: vis
     app = ViewerApp(server, sdir, role="coach", max_image_width=160)
     try:
         assert app.events.listing.content.startswith("No analytics yet")
-        ev, series = _events(40)
-        m = Manifest(stage="analyze", code_version="test", config={}, config_hash="0", inputs={}, metrics={"source": "filtered"})
-        ArtifactStore(sdir).write(m, {"events": ev, "series": series})
+        write_events(sdir, *sample_events(40))
         app.reload()
         h = app.events
         assert sorted(h.rows) == [0, 1]
@@ -79,5 +57,38 @@ def test_viewer_event_rows_filters_and_punch_buttons(tmp_path: Path, server: vis
         assert app.frame == 6
         h.rows[1].value = 20  # clicking on Blue's row moves the frame
         assert app.frame == 20 and int(app.timeline.frame.value) == 20
+    finally:
+        app.close()
+
+
+def test_event_chart_points_follow_the_filters_and_keep_the_cursor(tmp_path: Path, server: viser.ViserServer) -> None:
+    ev, series = sample_events(40)
+    v = EventsView(ev, series, {0: "Red", 1: "Blue"})
+    pts = v.chart_rows([0, 1], 40)
+    assert {k: np.flatnonzero(np.isfinite(a)).tolist() for k, a in pts.items()} == {
+        "landed": [6, 28], "blocked": [15], "missed": [], "defence": []}  # fmt: skip
+    assert pts["landed"][6] == pts["landed"][28] == 1.0 and pts["blocked"][15] == 2.0  # Red row 1, Blue row 2
+    assert np.isfinite(v.chart_rows([1, 0], 40)["landed"]).sum() == 2 and v.chart_rows([1, 0], 40)["landed"][6] == 2.0
+    assert all(np.isnan(a).all() for a in EventsView(None, None, {}).chart_rows([0, 1], 40).values())
+
+    sdir = build_session(tmp_path, n_frames=40)
+    write_events(sdir, ev, series)
+    app = ViewerApp(server, sdir, role="coach", max_image_width=160)
+    try:
+        chart = app.events.chart
+        t, *ys = chart.data
+        assert len(ys) == len(SERIES_COLORS) and np.allclose(t, np.arange(40) / app.data.fps)
+        landed = ys[list(SERIES_COLORS).index("landed")]
+        assert np.flatnonzero(np.isfinite(landed)).tolist() == [6, 28]
+        assert [s.get("points", {}).get("fill") for s in chart.series[1:]] == list(SERIES_COLORS.values())
+        assert chart.axes is not None and chart.axes[1]["values"] == ("Red", "Blue")
+        app.set_frame(15)  # the cursor line is drawn on the event chart too, beside its named rows
+        at_15 = (15 / app.data.fps,)
+        assert wait_for(lambda: len(chart.axes or ()) == 3 and chart.axes[-1]["splits"] == at_15, timeout_s=20)
+        assert chart.axes[1]["values"] == ("Red", "Blue")
+        app.events.outcome.value = "blocked"  # the chart follows the Events filters, as the mark rows
+        _, *ys = chart.data
+        assert [np.flatnonzero(np.isfinite(y)).tolist() for y in ys] == [[], [15], [], []]
+        assert chart.axes[-1]["splits"] == at_15 and chart.axes[1]["values"] == ("Red", "Blue")  # the cursor stays
     finally:
         app.close()

@@ -6,12 +6,12 @@ import dataclasses
 
 import numpy as np
 
-from tests.webui.test_events import _events
+from tests.webui.fixtures import sample_events
 from webui.events import HUMAN_MARK, EventsView
 
 
 def test_human_made_punches_are_flagged() -> None:
-    base, _ = _events(40)  # the three punches of the events-view tests
+    base, _ = sample_events(40)  # the three punches of the events-view tests
     ev = dataclasses.replace(base, punch_source=np.array(["detector", "corrected", "annotator"]))
     v = EventsView(ev, None, {0: "Red", 1: "Blue"})
     assert v.marks(0) == ((6, "J✓"), (28, f"RH✓{HUMAN_MARK}")) and v.marks(1) == ((15, f"C▪{HUMAN_MARK}"),)

@@ -9,12 +9,11 @@ from pathlib import Path
 import numpy as np
 import viser
 
-from pipeline.artifacts import ArtifactStore, Manifest
 from pipeline.schema.analytics import EVADE_KINDS, BoutEvents
-from tests.webui.fixtures import build_session
-from tests.webui.test_events import _events
+from tests.webui.fixtures import build_session, sample_events, write_events
 from webui.app import ViewerApp
 from webui.events import DEFENCE_ABBREV, DEFENCE_MARK, HUMAN_MARK, LEGEND, EventsView
+from webui.panels.event_chart import SERIES_COLORS
 from webui.panels.events import NO_EVENT
 
 RED, BLUE = 0, 1
@@ -23,7 +22,7 @@ RED, BLUE = 0, 1
 def _with_defence(n_frames: int = 40) -> tuple[BoutEvents, object]:
     """Red: jab (missed, 6), rear hook (landed, 28), lead hook (missed, 34); Blue: cross (blocked, 15).
     Blue parries the jab, Red blocks the cross (an annotator corrected it), Blue ducks the lead hook."""
-    base, series = _events(n_frames)
+    base, series = sample_events(n_frames)
     ev = dataclasses.replace(
         base,
         punch_person=np.array([RED, BLUE, RED, RED]), punch_hand=np.array(["left", "right", "right", "left"]),
@@ -90,11 +89,14 @@ def test_viewer_shows_defence_marks_and_filters_on_it(tmp_path: Path, server: vi
     app = ViewerApp(server, sdir, role="coach", max_image_width=160)
     try:
         ev, series = _with_defence(40)
-        m = Manifest(stage="analyze", code_version="test", config={}, config_hash="0", inputs={}, metrics={})
-        ArtifactStore(sdir).write(m, {"events": ev, "series": series})
+        write_events(sdir, ev, series)
         app.reload()
         h = app.events
         assert [mk.label for mk in h.rows[BLUE]._marks] == ["◇P", "C▪", "◇D"]
+        defence = h.chart.data[1 + list(SERIES_COLORS).index("defence")]  # the event chart's purple points
+        row = {p: k + 1.0 for k, p in enumerate(h.rows)}
+        assert np.flatnonzero(np.isfinite(defence)).tolist() == [6, 15, 35]
+        assert defence[6] == defence[35] == row[BLUE] and defence[15] == row[RED]
         assert "◇Bk block" in h.listing.content and h.legend.content == LEGEND
         assert "1 blocks" in h.summary.content and "1 parries" in h.summary.content
         assert "parry" in h.type.options and "jab" in h.type.options

@@ -159,7 +159,7 @@ def test_two_clients_keep_their_own_cursors(tmp_path: Path) -> None:
     ca, cb = _connect(port), _connect(port)
     try:
         assert _wait(lambda: len(app.clients) == 2 and "Frame" in ca.uuids and "Frame" in cb.uuids, timeout_s=60)
-        assert _wait(lambda: len(ca.charts) == len(cb.charts) == 4)
+        assert _wait(lambda: len(ca.charts) == len(cb.charts) == 5)  # the 4 plots and the event chart
         assert set(ca.charts).isdisjoint(cb.charts)  # each client has its own charts
         ca.set_value("Frame", 30)  # as each browser moves its slider
         cb.set_value("Frame", 10)

@@ -5,7 +5,8 @@ Each athlete row is a slider over the frames whose marks are that athlete's punc
 type and outcome, e.g. ``J✓``) and defence (``◇`` and the kind, e.g. ``◇Bk`` a block, at the
 defence's peak); it follows the frame slider, and moving it (or clicking on the row) moves
 the frame. viser's marks carry text only, so the outcome is a symbol (✓ landed, ▪ blocked,
-· missed) rather than a colour (``webui.events.LEGEND``).
+· missed) rather than a colour (``webui.events.LEGEND``); the event chart under the rows shows
+the same events coloured by outcome (``webui.panels.event_chart``).
 """
 
 from __future__ import annotations
@@ -19,7 +20,20 @@ from viser._messages import GuiSliderMark
 
 from pipeline.schema.analytics import EVADE_KINDS, OUTCOMES, PUNCH_TYPES
 from webui.events import ALL, LEGEND, EventsView
+from webui.panels.event_chart import make_event_chart, set_event_chart
 from webui.scope import Scope
+
+
+@dataclass
+class EventRows:
+    """What ``make_event_rows`` puts under the timeline."""
+
+    rows: dict[int, viser.GuiSliderHandle[int]]
+    """Athlete id -> his row of marks."""
+    prev: viser.GuiButtonHandle
+    next: viser.GuiButtonHandle
+    chart: viser.GuiUplotHandle
+    """The event chart (``webui.panels.event_chart``), rows in ``rows``' order."""
 
 
 @dataclass
@@ -34,6 +48,8 @@ class EventsHandles:
     listing: viser.GuiMarkdownHandle
     summary: viser.GuiMarkdownHandle
     legend: viser.GuiMarkdownHandle
+    chart: viser.GuiUplotHandle
+    """The event chart under the rows (``webui.panels.event_chart``)."""
 
 
 NO_EVENT = "(pick an event to jump to it)"
@@ -41,10 +57,9 @@ TYPE_OPTIONS: tuple[str, ...] = (ALL, *(t.replace("_", " ") for t in PUNCH_TYPES
 """The Type filter: every event, a punch type, or a defence kind."""
 
 
-def make_event_rows(server: Scope, athletes: list[tuple[int, str]], n_frames: int) -> tuple[
-    dict[int, viser.GuiSliderHandle[int]], viser.GuiButtonHandle, viser.GuiButtonHandle
-]:  # fmt: skip
-    """The per-athlete event rows and the previous / next punch buttons (under the timeline)."""
+def make_event_rows(server: Scope, athletes: list[tuple[int, str]], n_frames: int, fps: float) -> EventRows:
+    """The per-athlete event rows, the previous / next punch buttons and the event chart (under
+    the timeline); ``fps`` (> 0) the bout's frame rate."""
     rows = {
         pid: server.gui.add_slider(f"{name} punches", min=0, max=max(1, n_frames - 1), step=1, initial_value=0,
                                    hint=f"{name}'s punches and defence; click to jump. {LEGEND}")  # fmt: skip
@@ -53,13 +68,13 @@ def make_event_rows(server: Scope, athletes: list[tuple[int, str]], n_frames: in
     also = " (or defence, when the Type filter is a defence kind)"
     prev = server.gui.add_button("Previous punch", hint=f"Jump to the previous punch matching the Events filters{also}")
     nxt = server.gui.add_button("Next punch", hint=f"Jump to the next punch matching the Events filters{also}")
-    return rows, prev, nxt
+    return EventRows(rows, prev, nxt, make_event_chart(server, athletes, n_frames, fps))
 
 
 def make_events(
     server: Scope,
     athletes: list[str],
-    rows: tuple[dict[int, viser.GuiSliderHandle[int]], viser.GuiButtonHandle, viser.GuiButtonHandle],
+    rows: EventRows,
 ) -> EventsHandles:
     """Filters, the event picker, the legend, the list and the summary (call it inside the Events
     tab), with the rows and buttons ``make_event_rows`` made under the timeline."""
@@ -72,7 +87,7 @@ def make_events(
     legend = server.gui.add_markdown(LEGEND)
     listing = server.gui.add_markdown("")
     summary = server.gui.add_markdown("")
-    return EventsHandles(rows[0], rows[1], rows[2], athlete, kind, outcome, event, listing, summary, legend)
+    return EventsHandles(rows.rows, rows.prev, rows.next, athlete, kind, outcome, event, listing, summary, legend, rows.chart)
 
 
 def matching_rows(h: EventsHandles, view: EventsView) -> Any:
@@ -85,14 +100,16 @@ def matching_defence(h: EventsHandles, view: EventsView) -> Any:
     return view.defence_matching(h.athlete.value, h.type.value, h.outcome.value)
 
 
-def set_events(h: EventsHandles, view: EventsView, n_frames: int) -> None:
-    """Show ``view``: the marks of each athlete's row, the picker, the list, the summary."""
+def set_events(h: EventsHandles, view: EventsView, n_frames: int, fps: float) -> None:
+    """Show ``view``: the marks of each athlete's row, the event chart, the picker, the list, the
+    summary (``fps`` > 0, the bout's frame rate)."""
     rows, defence = matching_rows(h, view), matching_defence(h, view)
     for pid, row in h.rows.items():
         row.max = max(1, n_frames - 1)
         marks = view.marks(pid, rows, defence)
         # Marks are set after creation like the timeline's (``panels.timeline.set_problems``).
         row._marks = tuple(GuiSliderMark(value=float(v), label=lab) for v, lab in marks) or None
+    set_event_chart(h.chart, view, list(h.rows), n_frames, fps, rows, defence)
     h.event.options = (NO_EVENT, *view.picker_labels(rows, defence))
     h.event.value = NO_EVENT  # type: ignore[misc]
     h.listing.content = view.listing(rows, defence)
@@ -101,11 +118,11 @@ def set_events(h: EventsHandles, view: EventsView, n_frames: int) -> None:
 
 
 def wire_events(h: EventsHandles, get_view: Callable[[], EventsView], get_frame: Callable[[], int],
-                set_frame: Callable[[int], None], n_frames: Callable[[], int]) -> None:  # fmt: skip
+                set_frame: Callable[[int], None], n_frames: Callable[[], int], fps: Callable[[], float]) -> None:  # fmt: skip
     """Thin callbacks: filters refresh the panel, rows / picker / buttons move the frame."""
 
     def refresh(_: Any) -> None:
-        set_events(h, get_view(), n_frames())
+        set_events(h, get_view(), n_frames(), fps())
 
     for d in (h.athlete, h.type, h.outcome):
         d.on_update(refresh)

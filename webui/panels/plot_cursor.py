@@ -29,9 +29,10 @@ CURSOR_WIDTH_PX = 1.5
 """Width of the cursor line (CSS pixels)."""
 
 
-def cursor_axes(time_s: float) -> tuple[vup.Axis, ...]:
-    """The axes of a chart with the cursor at ``time_s`` (s, the charts' x unit): the default
-    x and y axes (the viewer's theme fills their colours), and the cursor's axis last."""
+def cursor_axes(time_s: float, base: tuple[vup.Axis, ...] = ({}, {})) -> tuple[vup.Axis, ...]:
+    """The axes of a chart with the cursor at ``time_s`` (s, the charts' x unit): the chart's own
+    x and y axes ``base`` (default: uPlot's, whose colours the viewer's theme fills), and the
+    cursor's axis last."""
     if not math.isfinite(time_s):
         raise ValueError(f"cursor_axes: time_s must be finite, got {time_s}")
     cursor: vup.Axis = {
@@ -44,7 +45,7 @@ def cursor_axes(time_s: float) -> tuple[vup.Axis, ...]:
         "ticks": {"show": False},
         "border": {"show": False},
     }
-    return ({}, {}, cursor)
+    return (*base, cursor)
 
 
 def cursor_time_s(chart: viser.GuiUplotHandle) -> float | None:
@@ -94,9 +95,8 @@ class PlotCursor:
         now = self.clock()
         if playing and now - self._moved_at < 1.0 / self.play_hz:
             return False
-        axes = cursor_axes(time_s)
         for chart in self.charts:
-            chart.axes = axes
+            chart.axes = cursor_axes(time_s, tuple(chart.axes[:2]) if chart.axes else ({}, {}))
         self.time_s, self._moved_at = float(time_s), now
         self.moves += 1
         return True
