@@ -27,7 +27,7 @@ SERIES_COLORS: dict[str, str] = {**OUTCOME_COLORS, DEFENCE_SERIES: DEFENCE_COLOR
 CHART_LEGEND_HTML = (
     '<div style="font-size: 0.8em; padding: 0 0.75em">'
     + " · ".join(f'<span style="color: {c}; font-size: 1.4em">●</span> {k}' for k, c in SERIES_COLORS.items())
-    + " — jump with the mark rows above</div>"
+    + "</div>"
 )
 """The legend under the chart, in the series' colours (uPlot's own legend draws its swatches
 with the line's width, 0 here)."""
