@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -196,6 +197,28 @@ def pose2sim_row(session_dir: str | Path, views: bool | None = None) -> dict[str
     return None
 
 
+@dataclass(frozen=True)
+class Stance:
+    """How the bench's bouts of one stance are made (``SyntheticConfig`` flags) and named."""
+
+    southpaw: bool
+    """``SyntheticConfig.southpaw``: the whole bout mirrored (the cameras see other sides)."""
+    mixed_stance: bool
+    """``SyntheticConfig.mixed_stance``: boxer 1 southpaw, boxer 0 orthodox."""
+    label: str
+    """Added to a row's ``data`` ("" for the plain orthodox bouts)."""
+    cache_tag: str
+    """Added to the ``cache_dir`` keys of its 3D results."""
+
+
+STANCES: dict[str, Stance] = {
+    "orthodox": Stance(False, False, "", ""),
+    "southpaw": Stance(True, False, ", southpaw", "_sp"),
+    "mixed": Stance(False, True, ", orthodox vs southpaw", "_mx"),
+}
+"""The stances ``run_bench`` scores the same seeds in, by name (all of them by default)."""
+
+
 def run_bench(
     seeds: list[int] | tuple[int, ...] = HELD_OUT_SEEDS,
     n_frames: int = 300,
@@ -205,7 +228,7 @@ def run_bench(
     pose2sim: str = FOOTAGE,
     views: bool | None = None,
     parry_prob: float = 0.0,
-    stances: str = "orthodox,southpaw",
+    stances: str = ",".join(STANCES),
 ) -> list[dict[str, Any]]:
     """Rows: one per (stance, 3D source, camera count) over ``seeds``, then the Pose2Sim row.
 
@@ -218,8 +241,7 @@ def run_bench(
     False turns it on / off (``ViewEvidenceConfig.enabled``). ``parry_prob``: the bouts'
     ``SyntheticConfig.parry_prob`` (0 to 1; > 0 scripts parries, scored in the parry columns,
     and makes other bouts than the default seeds' usual ones). ``stances``: comma-separated
-    among ``orthodox`` and ``southpaw`` (the same bouts mirrored, ``SyntheticConfig.southpaw``:
-    the cameras see other sides of the boxers; rows say so in ``data``).
+    among ``STANCES`` (rows say which in ``data``).
     """
     from pipeline.stages.analyze import AnalyzeInputs
     from pipeline.stages.analyze import run as analyze
@@ -231,24 +253,25 @@ def run_bench(
         raise ValueError(f"bench analytics: sources must be among fit, filtered, gt; got {sources!r}")
     cams = (cameras,) if isinstance(cameras, int) else tuple(cameras)
     names = [s.strip() for s in stances.split(",") if s.strip()]
-    if not names or set(names) - {"orthodox", "southpaw"}:
-        raise ValueError(f"bench analytics: stances must be among orthodox, southpaw; got {stances!r}")
-    lefty = [n == "southpaw" for n in names]
+    if not names or set(names) - set(STANCES):
+        raise ValueError(f"bench analytics: stances must be among {', '.join(STANCES)}; got {stances!r}")
     cache = Path(cache_dir) if cache_dir else None
     cfg = _config(views)
     p2s_dir, why = pose2sim_session(pose2sim) if pose2sim else (None, "pose2sim is empty")
     if p2s_dir is None:  # before the synthetic bouts: say it now, not after minutes
         log.warning("bench analytics: Pose2Sim row skipped: %s", why)
-    totals: dict[tuple[bool, str, int], dict[str, Any]] = {}
-    for southpaw, n_cams in ((sp, c) for sp in lefty for c in cams):
+    totals: dict[tuple[str, str, int], dict[str, Any]] = {}
+    for stance, n_cams in ((st, c) for st in names for c in cams):
+        st = STANCES[stance]
         for seed in seeds:
             t0 = time.perf_counter()
             bout = make_bout(SyntheticConfig(seed=int(seed), n_frames=int(n_frames), n_cameras=n_cams, variety=True,
-                                             parry_prob=float(parry_prob), southpaw=southpaw))  # fmt: skip
+                                             parry_prob=float(parry_prob), southpaw=st.southpaw,
+                                             mixed_stance=st.mixed_stance))  # fmt: skip
             made: dict[str, Keypoints3D] = {}
             tri: dict[str, Keypoints3D] = {}
             for src in ("raw", "filtered", *[w for w in wanted if w != "filtered"]):
-                tag = (f"_pp{float(parry_prob):g}" if parry_prob else "") + ("_sp" if southpaw else "")
+                tag = (f"_pp{float(parry_prob):g}" if parry_prob else "") + st.cache_tag
                 key = f"kp_s{seed}_c{n_cams}_f{n_frames}{tag}_{src}"
 
                 def make(src: str = src, made: dict[str, Keypoints3D] = made, bout: Any = bout) -> Keypoints3D:
@@ -270,18 +293,17 @@ def run_bench(
                     tracks=bout.tracks if real else None, association=bout.gt_association() if real else None,
                 )  # fmt: skip
                 s = score(bout.truth, analyze(inp, cfg).events)
-                tot = totals.setdefault((southpaw, src, n_cams), {k: 0 for k in COUNT_KEYS} | {"speed_err_max": 0.0})
+                tot = totals.setdefault((stance, src, n_cams), {k: 0 for k in COUNT_KEYS} | {"speed_err_max": 0.0})
                 for k in COUNT_KEYS:
                     tot[k] += s[k]
                 tot["speed_err_max"] = max(tot["speed_err_max"], s["speed_err_max"])
-            log.info("bench analytics: seed %d, %d cameras%s: %.1f s", seed, n_cams, ", southpaw" if southpaw else "",
-                     time.perf_counter() - t0)  # fmt: skip
+            log.info("bench analytics: seed %d, %d cameras%s: %.1f s", seed, n_cams, st.label, time.perf_counter() - t0)
     rows: list[dict[str, Any]] = []
-    for (southpaw, src, n_cams), tot in totals.items():
+    for (stance, src, n_cams), tot in totals.items():
         minutes = tot["frames"] / 50.0 / 60.0
         false = tot["detected"] - tot["matched"]
         rows.append(
-            {"data": f"synthetic{', southpaw' if southpaw else ''} ({src})", "cameras": n_cams,
+            {"data": f"synthetic{STANCES[stance].label} ({src})", "cameras": n_cams,
              "seeds": ",".join(str(s) for s in seeds),
              "frames": tot["frames"], "gt_punches": tot["gt_punches"], "detected": tot["detected"],
              "matched": tot["matched"], **rates(tot), "feints": tot["feints"], "feint_hits": tot["feint_hits"],

@@ -15,7 +15,7 @@ from pipeline.schema.detections import Tracks2D
 from pipeline.schema.joints import COCO17_FEET, mirror_joints
 from pipeline.schema.keypoints3d import Keypoints3D
 from pipeline.synthetic import combos
-from pipeline.synthetic.choreo import Choreography, make_choreography
+from pipeline.synthetic.choreo import Choreography, make_choreography, with_stances
 from pipeline.synthetic.config import SyntheticConfig
 from pipeline.synthetic.mirror import mirror_feet, mirror_truth
 from pipeline.synthetic.motion import boxer_arms, boxer_trunk, parry_contacts, punch_peak_speeds
@@ -56,9 +56,10 @@ class SyntheticBout:
         occluded: (dets, 23) bool, joint hidden behind a body volume in that view.
         bystander_xyz_m: (frames, 23, 3) the bystander's joints (empty (0, 23, 3) if none).
         punch_peak_speed_mps: (punches,) measured peak wrist speed of every scripted punch.
-        choreography: the script (phases, punches, slips, intents), written for orthodox
-            boxers: with ``SyntheticConfig.southpaw`` its ``Punch.hand`` is the mirror's
-            other hand (``truth`` has the hands as performed).
+        choreography: the script (phases, punches, slips, intents; with
+            ``SyntheticConfig.mixed_stance`` boxer 1's punches have ``lead="right"``): with
+            ``SyntheticConfig.southpaw`` its ``Punch.hand`` is the mirror's other hand
+            (``truth`` has the hands as performed).
         truth: the labelled events (punches with type and outcome, feints, slips and
             ducks, clinch frames; ``pipeline.synthetic.truth``).
     """
@@ -157,6 +158,8 @@ def make_bout(cfg: SyntheticConfig = SyntheticConfig()) -> SyntheticBout:
         else None
     )
     ch = make_choreography(cfg.n_frames, cfg.fps, cfg.clinch, rng_choreo, vary)
+    if cfg.mixed_stance:
+        ch = with_stances(ch, (False, True))
     ch, boxers, contact, speeds = _calibrated_boxers(ch, bodies, cfg.fps)
     boxers = separate_persons(boxers, _planted_joints(contact))
     truth = record_truth(ch, boxers, speeds, cfg.fps)

@@ -9,6 +9,7 @@ weight and the stance squareness are keyframed per phase and interpolated with P
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
@@ -101,12 +102,16 @@ class Punch:
     """Thrown in answer to the opponent's combination."""
     parry: Parry | None = None
     """``aim="parry"``: how the defender parries it (None otherwise)."""
+    lead: str = "left"
+    """The thrower's lead hand: ``left`` orthodox, ``right`` southpaw (``with_stances``)."""
     back_by_s: float = float("inf")
     """Time (s) by which the fist must be back in guard: the same hand's next punch leaves
     then. A duration that would end later (the speed calibration stretches punches) is
     scaled down, ``out_s`` and ``back_s`` alike, to end exactly then."""
 
     def __post_init__(self) -> None:
+        if self.lead not in ("left", "right"):
+            raise ValueError(f"Punch {self.kind} at {self.t0_s:.3f} s: lead must be 'left' or 'right', got {self.lead!r}")
         if (self.aim == "parry") != (self.parry is not None):
             raise ValueError(f"Punch {self.kind} at {self.t0_s:.3f} s: aim={self.aim!r} with parry={self.parry}")
         if self.end_s > self.back_by_s + 1e-9:
@@ -122,8 +127,10 @@ class Punch:
 
     @property
     def hand(self) -> str:
-        """Hand that throws it (both boxers are orthodox: lead = left)."""
-        return "right" if self.kind in REAR_KINDS else "left"
+        """Hand that throws it: the rear hand for ``REAR_KINDS``, else the ``lead`` hand."""
+        if self.kind in REAR_KINDS:
+            return "right" if self.lead == "left" else "left"
+        return self.lead
 
     @property
     def feint(self) -> bool:
@@ -192,6 +199,9 @@ class Choreography:
     punches: tuple[Punch, ...]
     slips: tuple[Slip, ...]
     phases: tuple[tuple[str, float, float], ...]
+    southpaw: tuple[bool, bool] = (False, False)
+    """Per boxer, whether he fights southpaw (``with_stances``; the script is written for two
+    orthodox boxers)."""
 
 
 def _phases(total_s: float, clinch: bool, rng: np.random.Generator) -> list[tuple[str, float, float]]:
@@ -307,3 +317,12 @@ def make_choreography(
         BoxerIntent(midpoint + 0.5 * dist[:, None] * u, psi + np.pi, square.copy(), clinch_w.copy()),
     )
     return Choreography(t, boxers, tuple(punches), tuple(slips), tuple(phases))
+
+
+def with_stances(ch: Choreography, southpaw: tuple[bool, bool]) -> Choreography:
+    """``ch`` with boxer ``i`` southpaw where ``southpaw[i]``: each of his punches is thrown with
+    the other hand (a jab with the right). The script only asks whether two punches share a
+    hand, which exchanging both hands keeps, so every time and choice of ``ch`` stays; his
+    stance, guard and trunk twists are mirrored where the motion is built (``motion``)."""
+    punches = tuple(dataclasses.replace(p, lead="right") if southpaw[p.person] else p for p in ch.punches)
+    return dataclasses.replace(ch, punches=punches, southpaw=(bool(southpaw[0]), bool(southpaw[1])))

@@ -59,6 +59,12 @@ class SyntheticConfig:
     """Both boxers southpaw (lead = right): the whole bout mirrored in the plane x = 0 with
     left and right exchanged (``pipeline.synthetic.mirror``). False: two orthodox boxers."""
 
+    mixed_stance: bool = False
+    """Boxer 1 southpaw against orthodox boxer 0: the script's punches thrown with his other
+    hand, his bladed stance, guard, lead hook and trunk twists mirrored in his own facing
+    frame; the script's times, clinch grips and slips unchanged (``choreo.with_stances``).
+    With ``southpaw`` the mirror makes boxer 0 the southpaw. False: no boxer mirrored."""
+
     image_size_wh: tuple[int, int] = (1280, 720)
     """Image width and height in pixels (same for every camera)."""
 

@@ -5,7 +5,8 @@ boxers in the world plane x = 0 and swapping the left and right labels
 (``schema.joints.mirror_joints``) turns each of them into a southpaw (lead = right, right foot
 in front) without re-scripting anything: a reflection keeps every distance, so every contact,
 outcome, clinch and strike frame of the script holds in the mirror too. Only the hands change names: a jab is thrown with the right
-hand. Both boxers are southpaws; an orthodox-against-southpaw bout cannot be made this way.
+hand. Both boxers are southpaws (for one southpaw against an orthodox boxer:
+``SyntheticConfig.mixed_stance``).
 """
 
 from __future__ import annotations

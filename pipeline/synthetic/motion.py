@@ -43,6 +43,26 @@ GUARD_FEET_YAW = np.array([-0.25, -0.9])
 SQUARE_FEET_YAW = np.array([-0.2, -0.5])
 # Fists in guard, relative to the neck in the facing frame (lead = left).
 GUARD_FIST = {"left": np.array([0.30, 0.03, 0.05]), "right": np.array([0.20, -0.09, 0.08])}
+MIRROR_Y = np.array([1.0, -1.0, 1.0])
+"""Reflects a facing-frame offset in the boxer's own sagittal plane (y -> -y)."""
+
+
+def guard_fist(side: str, southpaw: bool) -> np.ndarray:
+    """(3,) ``side`` fist in guard (``GUARD_FIST``), for a southpaw the mirror of the other one."""
+    if not southpaw:
+        return GUARD_FIST[side]
+    return GUARD_FIST["right" if side == "left" else "left"] * MIRROR_Y
+
+
+def guard_feet(southpaw: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(left, right) foot positions (2, 2) and yaw offsets (2,) of the bladed stance
+    (``GUARD_FEET_XY`` / ``GUARD_FEET_YAW``); for a southpaw each foot takes the mirror of the
+    other's (right foot in front). The square clinch stance is the same for both."""
+    if not southpaw:
+        return GUARD_FEET_XY, GUARD_FEET_YAW
+    return GUARD_FEET_XY[::-1] * MIRROR_Y[:2], -GUARD_FEET_YAW[::-1]
+
+
 # Lead hook: cubic Bezier control points (facing frame, relative to the neck, 1.75 m boxer)
 # from the guard around to in front of the chin line; no cusp, so the fist keeps moving.
 HOOK_CTRL = np.array([GUARD_FIST["left"], [0.42, 0.30, 0.02], [0.60, 0.22, 0.02], [0.55, -0.05, 0.05]])
@@ -189,13 +209,16 @@ def boxer_scalars(ch: Choreography, person: int, body: BodyDims) -> dict[str, np
     it = ch.boxers[person]
     t = ch.t_s
     q = it.square
-    yaw_off = -0.5 * (1.0 - q) - 0.12 * q
+    # A southpaw turns the other way: his bladed stance and each punch's twist are mirrored;
+    # the square clinch stance is not (both boxers lean and turn alike so that the heads pass).
+    turn = -1.0 if ch.southpaw[person] else 1.0
+    yaw_off = -0.5 * turn * (1.0 - q) - 0.12 * q
     pitch = 0.12 + 0.18 * it.clinch_w
     roll = -0.15 * it.clinch_w  # lean to the own left: the heads pass each other
     crouch = (0.06 + 0.02 * it.clinch_w) * body.scale + 0.012 * np.sin(2 * np.pi * 1.8 * t + 1.3 * person)
     for p in ch.punches:
         if p.person == person:
-            yaw_off = yaw_off + TWIST_RAD[p.kind] * p.profile(t)
+            yaw_off = yaw_off + turn * TWIST_RAD[p.kind] * p.profile(t)
             if p.kind.startswith("body"):
                 crouch = crouch + BODY_SHOT_DIP_M * body.scale * p.profile(t)
                 pitch = pitch + 0.1 * p.profile(t)
@@ -209,13 +232,15 @@ def boxer_scalars(ch: Choreography, person: int, body: BodyDims) -> dict[str, np
 
 
 def boxer_trunk(ch: Choreography, person: int, body: BodyDims, fps: float) -> Trunk:
-    """Trunk, head and legs of one boxer: orthodox stance blending into a square clinch
-    stance, footwork by planted steps (``StepParams`` defaults)."""
+    """Trunk, head and legs of one boxer: orthodox (or southpaw, ``Choreography.southpaw``)
+    stance blending into a square clinch stance, footwork by planted steps (``StepParams``
+    defaults)."""
     it = ch.boxers[person]
     sc = boxer_scalars(ch, person, body)
     q = it.square[:, None]
-    feet_xy = ((1 - q)[:, :, None] * GUARD_FEET_XY + q[:, :, None] * SQUARE_FEET_XY) * body.scale
-    feet_yaw = (1 - q) * GUARD_FEET_YAW + q * SQUARE_FEET_YAW
+    stance_xy, stance_yaw = guard_feet(ch.southpaw[person])
+    feet_xy = ((1 - q)[:, :, None] * stance_xy + q[:, :, None] * SQUARE_FEET_XY) * body.scale
+    feet_yaw = (1 - q) * stance_yaw + q * SQUARE_FEET_YAW
     return build_trunk(
         body,
         it.centre_xy,
@@ -277,7 +302,7 @@ def boxer_arms(
     tight = 0.5 + 0.5 * minjerk((gap - CLINCH_DISTANCE_M) / 0.8)
     for side in SIDES:
         out = 1.0 if side == "left" else -1.0
-        guard = np.tile(GUARD_FIST[side] * s, (len(t), 1))
+        guard = np.tile(guard_fist(side, ch.southpaw[person]) * s, (len(t), 1))
         guard[:, 0] *= tight  # at close range the fists are pulled in towards the face
         target = me.neck + apply(me.R_guard, guard)
         pole = apply(me.R_guard, np.array([-0.2, 0.35 * out, -1.0]))
@@ -292,8 +317,8 @@ def boxer_arms(
                 target, pole = _aimed_punch(p, prof, t, body, me, opp, target, pole, aimed, f_c)
             elif p.kind == "lead_hook":
                 # Horizontal arc in the facing frame, travelled at arc-length rate ``prof``.
-                local = hook_path(prof[:, 0]) - HOOK_CTRL[0]
-                target = target + apply(me.R_guard, local * s)
+                local = hook_path(prof[:, 0]) - HOOK_CTRL[0]  # a left hook: a right one is its mirror
+                target = target + apply(me.R_guard, local * (s if side == "left" else s * MIRROR_Y))
                 pole = pole + 2.5 * prof * apply(me.R_guard, np.array([0.0, out, 0.3]))
             else:
                 aim = opp.head[frame_at(t, p.t0_s)] - shoulder[fp]

@@ -35,13 +35,15 @@ def test_scores_of_perfect_and_shifted_events() -> None:
 
 def test_run_bench_on_ground_truth_joints() -> None:
     rows = run_bench(seeds=[0], n_frames=300, cameras=4, sources="gt", pose2sim="")
-    assert [r["data"] for r in rows] == ["synthetic (gt)", "synthetic, southpaw (gt)"]
+    assert [r["data"] for r in rows] == [
+        "synthetic (gt)", "synthetic, southpaw (gt)", "synthetic, orthodox vs southpaw (gt)"]  # fmt: skip
     assert rows[0]["recall"] >= 0.8 and rows[0]["clinch_f1"] >= 0.8
+    assert rows[2]["recall"] >= 0.8 and rows[2]["type_acc_pct"] >= 90.0 and rows[2]["clinch_f1"] >= 0.8
     # The southpaw bout is the same bout in a mirror: on its ground-truth joints every score is the same.
     scores = ("gt_punches", "detected", "matched", "precision", "recall", "type_acc_pct", "outcome_acc_pct", "clinch_f1")
     assert {k: rows[1][k] for k in scores} == {k: rows[0][k] for k in scores}
 
 
 def test_run_bench_refuses_an_unknown_stance() -> None:
-    with pytest.raises(ValueError, match="stances must be among orthodox, southpaw; got 'lefty'"):
+    with pytest.raises(ValueError, match="stances must be among orthodox, southpaw, mixed; got 'lefty'"):
         run_bench(seeds=[0], cameras=4, sources="gt", pose2sim="", stances="lefty")
