@@ -113,6 +113,14 @@ def flip_pairs(names: tuple[str, ...]) -> list[tuple[int, int]]:
     return out
 
 
+def other_side(side: str) -> str:
+    """``"right"`` for ``"left"`` and ``"left"`` for ``"right"`` (a hand, a foot, a joint's side);
+    ``ValueError`` for anything else."""
+    if side not in ("left", "right"):
+        raise ValueError(f"side must be 'left' or 'right', got {side!r}")
+    return "right" if side == "left" else "left"
+
+
 def mirror_joints(xyz: np.ndarray, names: tuple[str, ...] = COCO17_FEET) -> np.ndarray:
     """Mirror image of (..., len(names), 3) joints: x -> -x and every ``left_*`` joint
     exchanged with its ``right_*`` twin (``flip_pairs``); a new array of the same dtype."""

@@ -16,6 +16,7 @@ from typing import Literal
 
 import numpy as np
 
+from pipeline.schema.joints import other_side
 from pipeline.synthetic.curves import keyframes, minjerk
 
 PunchKind = Literal[
@@ -129,7 +130,7 @@ class Punch:
     def hand(self) -> str:
         """Hand that throws it: the rear hand for ``REAR_KINDS``, else the ``lead`` hand."""
         if self.kind in REAR_KINDS:
-            return "right" if self.lead == "left" else "left"
+            return other_side(self.lead)
         return self.lead
 
     @property

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
+from pipeline.schema.joints import other_side
 from pipeline.synthetic.choreo import CLINCH_DISTANCE_M, Choreography, Punch
 from pipeline.synthetic.combos import PARRY_BACK_S, PARRY_IN_S, PARRY_LIFT, family, parry_span
 from pipeline.synthetic.curves import apply, bump, minjerk, rot_z, rot_zyx, softmin
@@ -51,7 +52,7 @@ def guard_fist(side: str, southpaw: bool) -> np.ndarray:
     """(3,) ``side`` fist in guard (``GUARD_FIST``), for a southpaw the mirror of the other one."""
     if not southpaw:
         return GUARD_FIST[side]
-    return GUARD_FIST["right" if side == "left" else "left"] * MIRROR_Y
+    return GUARD_FIST[other_side(side)] * MIRROR_Y
 
 
 def guard_feet(southpaw: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -479,7 +480,7 @@ def parry_contacts(
         if p.parry is None:
             continue
         a, d = p.person, 1 - p.person
-        side = "right" if p.hand == "left" else "left"
+        side = other_side(p.hand)
         n, fwd = parry_geometry(p, t, trunks[a].joints, trunks[d].joints)
         start, first, peak = frame_at(t, p.t0_s), frame_at(t, p.parry_s), frame_at(t, p.peak_s)
         rows = np.arange(start + 1, max(peak, start + 2))

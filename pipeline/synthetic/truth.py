@@ -48,7 +48,7 @@ from pipeline.evaluate.physics_metrics import CapsuleProxy
 from pipeline.geometry.segments import segment_distance
 from pipeline.schema.analytics import EVADE_KINDS, HANDS, OUTCOMES, PUNCH_TYPES, TARGETS
 from pipeline.schema.base import check_array
-from pipeline.schema.joints import COCO17_FEET
+from pipeline.schema.joints import COCO17_FEET, other_side
 from pipeline.synthetic.choreo import Choreography, Punch
 from pipeline.synthetic.strikes import R_GLOVE_M, frame_at, glove_centre
 
@@ -243,7 +243,7 @@ def record_truth(ch: Choreography, xyz_m: np.ndarray, peak_speed_mps: np.ndarray
         win = np.arange(max(fr["peak"] - 1, 0), min(fr["peak"] + 3, n_f))
         outcome, _ = contact_outcome(xyz_m, p.person, p.hand, win)
         if p.aim == "parry":
-            side = "right" if p.hand == "left" else "left"
+            side = other_side(p.hand)
             c = parry_contact(xyz_m, p.person, p.hand, side, np.arange(fr["start"], fr["peak"] + 1))
             if c >= 0:
                 parries.append({"person": 1 - p.person, "hand": side, "punch": len(rows), "frame": c})
