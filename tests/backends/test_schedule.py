@@ -330,3 +330,34 @@ def test_inverse_kinematics_holds_a_hinge_at_its_limit_out_of_the_step() -> None
     assert tilt_clamped > 5.0
     assert tilt_held < 1.0
     assert err_held < 0.5 * err_clamped
+
+
+def test_inverse_kinematics_of_two_persons_equals_each_alone() -> None:
+    """The solve accumulates each person's normal equations in that person's block of
+    degrees of freedom: two persons solved in one scene land where each lands alone
+    (sites and flat planted feet, one site unseen, swinging arms), so no term is lost or
+    put in the other's block."""
+    skel = build_skeleton(dict(_DEFAULT_LENGTHS))
+    both = build_scene([skel, skel], [0, 1], FPS, COCO17_FEET, HumanoidConfig())
+    alone = _one_person_scene()
+    m1 = alone.model
+    d = mujoco.MjData(m1)
+    n = 6
+    q = _swinging_arms(m1, n)
+    sites = len(alone.site_names)
+    targets = np.zeros((n, 2, sites, 3))
+    for f in range(n):
+        d.qpos[:] = q[f]
+        mujoco.mj_kinematics(m1, d)
+        targets[f, 0] = d.site_xpos[alone.site_ids[0]]
+        targets[f, 1] = targets[f, 0] + np.array([1.5, 0.2, 0.0])  # the same motion, beside
+    rng = np.random.default_rng(0)
+    targets += rng.normal(0.0, 0.01, targets.shape)
+    weight = rng.uniform(0.5, 1.0, targets.shape[:3])
+    weight[:, 1, 3] = 0.0
+    flat = np.zeros((n, 2, 2), dtype=bool)
+    flat[:, 0, 0] = flat[:, 1, 1] = True
+    together = inverse_kinematics(both, targets, weight, flat=flat, sole_lift_m=0.005)
+    for i, p in enumerate(both.layout.persons):
+        single = inverse_kinematics(alone, targets[:, i : i + 1], weight[:, i : i + 1], flat=flat[:, i : i + 1], sole_lift_m=0.005)
+        np.testing.assert_allclose(together[:, p.qpos_adr : p.qpos_adr + p.nq], single, atol=1e-9)

@@ -527,8 +527,11 @@ def separable(lin: Linearisation, parts: list[tuple[np.ndarray, np.ndarray]]) ->
     cross_xx = px[:, None] != px[None, :]
     cross_xu = px[:, None] != pu[None, :]
     cross_uu = pu[:, None] != pu[None, :]
-    return not (
-        np.any(lin.A[:, cross_xx]) or np.any(lin.lxx[:, cross_xx]) or np.any(lin.B[:, cross_xu]) or np.any(lin.luu[:, cross_uu])
+    # Which entries are nonzero at any knot, then whether any of them crosses persons: one
+    # pass over each array instead of a copy of its cross-person entries.
+    return not any(
+        np.any(np.any(a != 0, axis=0)[cross])
+        for a, cross in ((lin.A, cross_xx), (lin.lxx, cross_xx), (lin.B, cross_xu), (lin.luu, cross_uu))
     )
 
 

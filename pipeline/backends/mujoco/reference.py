@@ -130,6 +130,15 @@ def inverse_kinematics(
     jac = np.zeros((3, m.nv))
     dq = np.zeros(m.nv)
 
+    # A person's sites and feet move only that person's degrees of freedom, so the normal
+    # equations are block diagonal: each person's block is accumulated on its own (the
+    # other blocks would only add exact zeros; the result is bit for bit the same).
+    blocks = [slice(p.qvel_adr, p.qvel_adr + p.nv) for p in lay.persons]
+    if sum(p.nv for p in lay.persons) != m.nv:
+        raise ValueError(f"inverse_kinematics: the persons' {sum(p.nv for p in lay.persons)} dofs are not the scene's {m.nv}")
+    site_ids = np.asarray(scene.site_ids, dtype=np.int64)
+    jacs = np.zeros((S, 3, m.nv))
+
     def iterate(q: np.ndarray, f: int, n_iters: int, cold: bool) -> None:
         for it in range(n_iters):
             d.qpos[:] = q
@@ -138,15 +147,18 @@ def inverse_kinematics(
             JtJ = np.zeros((m.nv, m.nv))
             Jtr = np.zeros(m.nv)
             for i in range(P):
-                for s in range(S):
-                    w = weight[f, i, s]
-                    if w <= 0:
-                        continue
-                    sid = int(scene.site_ids[i, s])
-                    r = d.site_xpos[sid] - targets[f, i, s]
-                    mujoco.mj_jacSite(m, d, jac, None, sid)
-                    JtJ += w * jac.T @ jac
-                    Jtr += w * jac.T @ r
+                b = blocks[i]
+                JtJ_b, Jtr_b, jac_b, jacr_b = JtJ[b, b], Jtr[b], jac[:, b], jacr[:, b]
+                sel = np.flatnonzero(weight[f, i] > 0)
+                if sel.size:
+                    sids = site_ids[i, sel]
+                    for n, sid in enumerate(sids):
+                        mujoco.mj_jacSite(m, d, jacs[n], None, int(sid))
+                    # w J^T J and w J^T r of every site, summed in site order.
+                    wjt = weight[f, i, sel][:, None, None] * jacs[: sel.size, :, b].transpose(0, 2, 1)
+                    r = d.site_xpos[sids] - targets[f, i, sel]
+                    JtJ_b += np.matmul(wjt, jacs[: sel.size, :, b]).sum(axis=0)
+                    Jtr_b += np.matmul(wjt, r[:, :, None])[:, :, 0].sum(axis=0)
                 for k_side in (0, 1):
                     if flat is None or not flat[f, i, k_side]:
                         continue
@@ -154,11 +166,11 @@ def inverse_kinematics(
                     mujoco.mj_jacBody(m, d, jac, jacr, body)
                     z_axis = d.xmat[body].reshape(3, 3)[:, 2]
                     # d(z_axis) = omega x z_axis = -[z_axis]x J_r dq; keep its x, y rows.
-                    Jt = (-_skew(z_axis) @ jacr)[:2] * FLAT_LEVER_M
+                    Jt = (-_skew(z_axis) @ jacr_b)[:2] * FLAT_LEVER_M
                     rt = z_axis[:2] * FLAT_LEVER_M
                     rh = d.xpos[body, 2] - (h0 + sole_lift_m)
-                    JtJ += flat_weight * (Jt.T @ Jt + np.outer(jac[2], jac[2]))
-                    Jtr += flat_weight * (Jt.T @ rt + jac[2] * rh)
+                    JtJ_b += flat_weight * (Jt.T @ Jt + np.outer(jac_b[2], jac_b[2]))
+                    Jtr_b += flat_weight * (Jt.T @ rt + jac_b[2] * rh)
             if posture_weight > 0:
                 # A weak pull of every hinge towards its rest angle (rad² against the
                 # sites' m²): keeps the joints the keypoints do not pin down from drifting.
