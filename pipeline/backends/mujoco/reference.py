@@ -132,10 +132,11 @@ def inverse_kinematics(
 
     # A person's sites and feet move only that person's degrees of freedom, so the normal
     # equations are block diagonal: each person's block is accumulated on its own (the
-    # other blocks would only add exact zeros; the result is bit for bit the same).
+    # full matrix's other blocks only ever received exact zeros there).
     blocks = [slice(p.qvel_adr, p.qvel_adr + p.nv) for p in lay.persons]
-    if sum(p.nv for p in lay.persons) != m.nv:
-        raise ValueError(f"inverse_kinematics: the persons' {sum(p.nv for p in lay.persons)} dofs are not the scene's {m.nv}")
+    person_dofs = sum(p.nv for p in lay.persons)
+    if person_dofs != m.nv:
+        raise ValueError(f"inverse_kinematics: the scene has {m.nv} dofs, its persons {person_dofs}; each dof must be one person's")
     site_ids = np.asarray(scene.site_ids, dtype=np.int64)
     jacs = np.zeros((S, 3, m.nv))
 
