@@ -361,3 +361,48 @@ def test_inverse_kinematics_of_two_persons_equals_each_alone() -> None:
     for i, p in enumerate(both.layout.persons):
         single = inverse_kinematics(alone, targets[:, i : i + 1], weight[:, i : i + 1], flat=flat[:, i : i + 1], sole_lift_m=0.005)
         np.testing.assert_allclose(together[:, p.qpos_adr : p.qpos_adr + p.nq], single, atol=1e-9)
+
+
+def test_inverse_kinematics_names_a_non_finite_weight_or_target() -> None:
+    """A NaN weight, or a NaN target with a weight, is an error naming the frame, person and
+    site (it used to turn every later frame's pose into NaN); a NaN target of weight 0 is
+    ignored."""
+    scene = _one_person_scene()
+    m = scene.model
+    d = mujoco.MjData(m)
+    n = 3
+    q = _swinging_arms(m, n)
+    targets = np.zeros((n, 1, len(scene.site_names), 3))
+    for f in range(n):
+        d.qpos[:] = q[f]
+        mujoco.mj_kinematics(m, d)
+        targets[f, 0] = d.site_xpos[scene.site_ids[0]]
+    weight = np.ones(targets.shape[:3])
+    bad_w = weight.copy()
+    bad_w[1, 0, 5] = np.nan
+    with pytest.raises(ValueError, match=f"frame 1, person 0, site {scene.site_names[5]}"):
+        inverse_kinematics(scene, targets, bad_w)
+    bad_t = targets.copy()
+    bad_t[2, 0, 3, 1] = np.nan
+    with pytest.raises(ValueError, match=f"frame 2, person 0, site {scene.site_names[3]}"):
+        inverse_kinematics(scene, bad_t, weight)
+    unseen = weight.copy()
+    unseen[2, 0, 3] = 0.0
+    assert np.isfinite(inverse_kinematics(scene, bad_t, unseen)).all()
+
+
+def test_site_targets_give_an_invalid_joint_weight_zero_whatever_its_confidence() -> None:
+    """A NaN confidence on an invalid joint weighs 0 (0 × NaN reached the solve as NaN before);
+    on a valid joint it stays NaN, which the solve names (above)."""
+    scene = _one_person_scene()
+    kp = _rest_keypoints(1.0)
+    j = COCO17_FEET.index(scene.site_names[4])
+    valid = kp.valid.copy()
+    conf = kp.confidence.copy()
+    valid[1, 0, j] = False
+    conf[1, 0, j] = np.nan
+    conf[2, 0, j] = np.nan
+    _, weight = site_targets(scene, kp.replace(valid=valid, confidence=conf), [0])
+    assert weight[1, 0, 4] == 0.0
+    assert np.isnan(weight[2, 0, 4])
+    assert np.isfinite(np.delete(weight, 2, axis=0)).all()

@@ -110,6 +110,13 @@ def inverse_kinematics(
     m, lay = scene.model, scene.layout
     d = mujoco.MjData(m)
     F, P, S = weight.shape
+    bad = ~np.isfinite(weight) | ((weight > 0) & ~np.isfinite(targets).all(axis=-1))
+    if bad.any():
+        f, i, s = (int(v) for v in np.argwhere(bad)[0])
+        raise ValueError(
+            f"inverse_kinematics: {int(bad.sum())} non-finite site weights or weighted targets, the first at frame {f}, "
+            f"person {i}, site {scene.site_names[s]} (weight {weight[f, i, s]}, target {targets[f, i, s]})"
+        )
     k0 = 0 if prefix is None else int(prefix.shape[0])
     if prefix is not None and (prefix.ndim != 2 or not 1 <= k0 <= F or prefix.shape[1] != m.nq):
         raise ValueError(f"inverse_kinematics: prefix has shape {prefix.shape}, expected (1..{F}, {m.nq})")
@@ -276,7 +283,8 @@ def site_targets(scene: Scene, kp: Keypoints3D, person_rows: list[int]) -> tuple
     """The scene's site targets from ``kp``: world positions (frames, persons, sites, 3),
     zero where invalid, and weights (frames, persons, sites) = validity × confidence."""
     jidx = [kp.joint_names.index(n) for n in scene.site_names]
-    weight = (kp.valid[:, person_rows][:, :, jidx] * np.clip(kp.confidence[:, person_rows][:, :, jidx], 0.0, 1.0)).astype(float)
+    # An invalid joint weighs 0 whatever its confidence (a NaN there must not reach the solve).
+    weight = np.where(kp.valid[:, person_rows][:, :, jidx], np.clip(kp.confidence[:, person_rows][:, :, jidx], 0.0, 1.0), 0.0).astype(float)
     targets = np.where(weight[..., None] > 0, kp.xyz_m[:, person_rows][:, :, jidx].astype(float), 0.0)
     return targets, weight
 
