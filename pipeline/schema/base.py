@@ -57,6 +57,19 @@ def check_finite_where(name: str, arr: np.ndarray, valid: np.ndarray) -> None:
         raise ValueError(f"{name}: NaN/inf values at entries marked valid")
 
 
+def check_unit_interval_where(name: str, arr: np.ndarray, valid: np.ndarray) -> None:
+    """Values where ``valid`` is True must lie in [0, 1] (NaN fails); the error names the
+    first offending entry's index and value."""
+    sel = arr[valid]
+    bad = ~((sel >= 0.0) & (sel <= 1.0))
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(valid)[int(np.argmax(bad))])
+        raise ValueError(
+            f"{name}: {int(bad.sum())} entries marked valid are outside [0, 1] or not finite, "
+            f"first at index {idx}: {sel[bad][0]!r}"
+        )
+
+
 def to_arrays(obj: Any) -> dict[str, np.ndarray]:
     """Flatten a schema dataclass into npz-ready arrays (no object dtype)."""
     if not dataclasses.is_dataclass(obj):

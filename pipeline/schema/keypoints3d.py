@@ -7,7 +7,7 @@ from typing import Literal
 
 import numpy as np
 
-from pipeline.schema.base import check_array, check_finite_where
+from pipeline.schema.base import check_array, check_finite_where, check_unit_interval_where
 
 Keypoints3DSource = Literal["raw", "filtered", "fit", "physics", "gt"]
 SOURCES: tuple[str, ...] = ("raw", "filtered", "fit", "physics", "gt")
@@ -65,6 +65,7 @@ class Keypoints3D:
             object.__setattr__(self, "filled", np.zeros((f, p, j), dtype=bool))
         check_array("Keypoints3D.filled", self.filled, (f, p, j), "b")
         check_finite_where("Keypoints3D.xyz_m", self.xyz_m, self.valid)
+        check_unit_interval_where("Keypoints3D.confidence", self.confidence, self.valid)
         if self.source in _LEGACY_SOURCES:
             object.__setattr__(self, "source", _LEGACY_SOURCES[self.source])
         if self.source not in SOURCES:

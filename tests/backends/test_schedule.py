@@ -393,7 +393,7 @@ def test_inverse_kinematics_names_a_non_finite_weight_or_target() -> None:
 
 def test_site_targets_give_an_invalid_joint_weight_zero_whatever_its_confidence() -> None:
     """A NaN confidence on an invalid joint weighs 0 (0 × NaN reached the solve as NaN before);
-    on a valid joint it stays NaN, which the solve names (above)."""
+    on a valid joint the keypoints themselves refuse it (``Keypoints3D``)."""
     scene = _one_person_scene()
     kp = _rest_keypoints(1.0)
     j = COCO17_FEET.index(scene.site_names[4])
@@ -401,8 +401,9 @@ def test_site_targets_give_an_invalid_joint_weight_zero_whatever_its_confidence(
     conf = kp.confidence.copy()
     valid[1, 0, j] = False
     conf[1, 0, j] = np.nan
-    conf[2, 0, j] = np.nan
     _, weight = site_targets(scene, kp.replace(valid=valid, confidence=conf), [0])
     assert weight[1, 0, 4] == 0.0
-    assert np.isnan(weight[2, 0, 4])
-    assert np.isfinite(np.delete(weight, 2, axis=0)).all()
+    assert np.isfinite(weight).all()
+    conf[2, 0, j] = np.nan
+    with pytest.raises(ValueError, match=r"Keypoints3D.confidence: .* index \(2, 0, " + str(j) + r"\)"):
+        kp.replace(valid=valid, confidence=conf)

@@ -108,6 +108,27 @@ def test_keypoints3d_empty_and_validation() -> None:
     assert kp.replace(source="triangulation").source == "raw"
 
 
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -0.1, 1.5])
+def test_keypoints3d_rejects_a_valid_joint_whose_confidence_is_not_in_0_1(tmp_path: Path, bad: float) -> None:
+    kp = Keypoints3D.empty(COCO17, np.array([0, 1]), np.arange(4), 50.0, "filtered")
+    valid = kp.valid.copy()
+    valid[2, 1, 5] = True
+    conf = np.zeros_like(kp.confidence)
+    conf[0, 0, 0] = bad  # an invalid joint may hold anything
+    ok = kp.replace(valid=valid, confidence=conf)
+    conf[2, 1, 5] = bad
+    with pytest.raises(ValueError, match=r"Keypoints3D.confidence: 1 entries .* index \(2, 1, 5\)"):
+        kp.replace(valid=valid, confidence=conf)
+    # A stored artifact with such a confidence is an error naming the file.
+    path = tmp_path / "keypoints3d.npz"
+    save_npz(path, ok)
+    arrays = dict(np.load(path))
+    arrays["confidence"] = conf
+    np.savez(path, **arrays)
+    with pytest.raises(ValueError, match=rf"{path}: invalid Keypoints3D: Keypoints3D.confidence"):
+        load_npz(path, Keypoints3D)
+
+
 def test_association_rejects_unknown_ids() -> None:
     with pytest.raises(ValueError, match="not in person_ids"):
         Association(np.array([0, 1]), ("A", "B"), np.array([0, 2, -1]), np.array([1.0, 1.0, 0.0]))
