@@ -66,7 +66,7 @@ def check_unit_interval_where(name: str, arr: np.ndarray, valid: np.ndarray) -> 
         idx = tuple(int(i) for i in np.argwhere(valid)[int(np.argmax(bad))])
         raise ValueError(
             f"{name}: {int(bad.sum())} entries marked valid are outside [0, 1] or not finite, "
-            f"first at index {idx}: {sel[bad][0]!r}"
+            f"first at index {idx}: {float(sel[bad][0])}"
         )
 
 
