@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import numpy as np
@@ -122,10 +123,11 @@ def test_keypoints3d_rejects_a_valid_joint_whose_confidence_is_not_in_0_1(tmp_pa
     # A stored artifact with such a confidence is an error naming the file.
     path = tmp_path / "keypoints3d.npz"
     save_npz(path, ok)
-    arrays = dict(np.load(path))
+    with np.load(path) as z:
+        arrays = dict(z)
     arrays["confidence"] = conf
     np.savez(path, **arrays)
-    with pytest.raises(ValueError, match=rf"{path}: invalid Keypoints3D: Keypoints3D.confidence"):
+    with pytest.raises(ValueError, match=re.escape(f"{path}: invalid Keypoints3D: Keypoints3D.confidence")):
         load_npz(path, Keypoints3D)
 
 
