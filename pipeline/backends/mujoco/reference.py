@@ -283,8 +283,9 @@ def site_targets(scene: Scene, kp: Keypoints3D, person_rows: list[int]) -> tuple
     """The scene's site targets from ``kp``: world positions (frames, persons, sites, 3),
     zero where invalid, and weights (frames, persons, sites) = validity × confidence."""
     jidx = [kp.joint_names.index(n) for n in scene.site_names]
-    # An invalid joint weighs 0 whatever its confidence (a NaN there must not reach the solve).
-    weight = np.where(kp.valid[:, person_rows][:, :, jidx], np.clip(kp.confidence[:, person_rows][:, :, jidx], 0.0, 1.0), 0.0).astype(float)
+    # An invalid joint weighs 0 whatever its confidence (a NaN there must not reach the solve);
+    # a valid joint's confidence is in [0, 1] (``Keypoints3D`` checks it).
+    weight = np.where(kp.valid[:, person_rows][:, :, jidx], kp.confidence[:, person_rows][:, :, jidx], 0.0).astype(float)
     targets = np.where(weight[..., None] > 0, kp.xyz_m[:, person_rows][:, :, jidx].astype(float), 0.0)
     return targets, weight
 
