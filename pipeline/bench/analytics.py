@@ -229,6 +229,7 @@ def run_bench(
     views: bool | None = None,
     parry_prob: float = 0.0,
     stances: str = ",".join(STANCES),
+    camera_step_deg: float | None = None,
 ) -> list[dict[str, Any]]:
     """Rows: one per (stance, 3D source, camera count) over ``seeds``, then the Pose2Sim row.
 
@@ -241,7 +242,10 @@ def run_bench(
     False turns it on / off (``ViewEvidenceConfig.enabled``). ``parry_prob``: the bouts'
     ``SyntheticConfig.parry_prob`` (0 to 1; > 0 scripts parries, scored in the parry columns,
     and makes other bouts than the default seeds' usual ones). ``stances``: comma-separated
-    among ``STANCES`` (rows say which in ``data``).
+    among ``STANCES`` (rows say which in ``data``). ``camera_step_deg``: the bouts'
+    ``SyntheticConfig.camera_step_deg`` (degrees from one camera to the next around the ring,
+    at most 360 / cameras; None spreads them evenly, so two cameras face each other; 90 puts
+    them a quarter turn apart; rows say it in ``data``).
     """
     from pipeline.stages.analyze import AnalyzeInputs
     from pipeline.stages.analyze import run as analyze
@@ -255,6 +259,10 @@ def run_bench(
     names = [s.strip() for s in stances.split(",") if s.strip()]
     if not names or set(names) - set(STANCES):
         raise ValueError(f"bench analytics: stances must be among {', '.join(STANCES)}; got {stances!r}")
+    step = None if camera_step_deg is None else float(camera_step_deg)
+    for n_cams in cams:  # before minutes of work: SyntheticConfig checks the range
+        SyntheticConfig(n_cameras=n_cams, camera_step_deg=step)
+    layout = "" if step is None else f", cameras {step:g} deg apart"
     cache = Path(cache_dir) if cache_dir else None
     cfg = _config(views)
     p2s_dir, why = pose2sim_session(pose2sim) if pose2sim else (None, "pose2sim is empty")
@@ -267,11 +275,11 @@ def run_bench(
             t0 = time.perf_counter()
             bout = make_bout(SyntheticConfig(seed=int(seed), n_frames=int(n_frames), n_cameras=n_cams, variety=True,
                                              parry_prob=float(parry_prob), southpaw=st.southpaw,
-                                             mixed_stance=st.mixed_stance))  # fmt: skip
+                                             mixed_stance=st.mixed_stance, camera_step_deg=step))  # fmt: skip
             made: dict[str, Keypoints3D] = {}
             tri: dict[str, Keypoints3D] = {}
             for src in ("raw", "filtered", *[w for w in wanted if w != "filtered"]):
-                tag = (f"_pp{float(parry_prob):g}" if parry_prob else "") + st.cache_tag
+                tag = (f"_pp{float(parry_prob):g}" if parry_prob else "") + st.cache_tag + (f"_cs{step:g}" if step else "")
                 key = f"kp_s{seed}_c{n_cams}_f{n_frames}{tag}_{src}"
 
                 def make(src: str = src, made: dict[str, Keypoints3D] = made, bout: Any = bout) -> Keypoints3D:
@@ -297,13 +305,14 @@ def run_bench(
                 for k in COUNT_KEYS:
                     tot[k] += s[k]
                 tot["speed_err_max"] = max(tot["speed_err_max"], s["speed_err_max"])
-            log.info("bench analytics: seed %d, %d cameras%s: %.1f s", seed, n_cams, st.label, time.perf_counter() - t0)
+            log.info("bench analytics: seed %d, %d cameras%s%s: %.1f s", seed, n_cams, layout, st.label, time.perf_counter() - t0)
     rows: list[dict[str, Any]] = []
     for (stance, src, n_cams), tot in totals.items():
         minutes = tot["frames"] / 50.0 / 60.0
         false = tot["detected"] - tot["matched"]
         rows.append(
-            {"data": f"synthetic{STANCES[stance].label} ({src})", "cameras": n_cams,
+            {"data": f"synthetic{STANCES[stance].label} ({src}){layout}", "cameras": n_cams,
+             "camera_step_deg": step,
              "seeds": ",".join(str(s) for s in seeds),
              "frames": tot["frames"], "gt_punches": tot["gt_punches"], "detected": tot["detected"],
              "matched": tot["matched"], **rates(tot), "feints": tot["feints"], "feint_hits": tot["feint_hits"],

@@ -165,7 +165,7 @@ def make_bout(cfg: SyntheticConfig = SyntheticConfig()) -> SyntheticBout:
     truth = record_truth(ch, boxers, speeds, cfg.fps)
     if cfg.southpaw:  # the script's orthodox bout in a mirror (``mirror``): truth recorded before
         boxers, contact, truth = mirror_joints(boxers), mirror_feet(contact), mirror_truth(truth)
-    rig = make_rig(cfg.n_cameras, cfg.image_size_wh, cfg.fps, cfg.distortion, rng_rig)
+    rig = make_rig(cfg.n_cameras, cfg.image_size_wh, cfg.fps, cfg.distortion, rng_rig, cfg.camera_step_deg)
 
     persons = [boxers[:, 0], boxers[:, 1]]
     person_bodies = list(bodies)

@@ -17,6 +17,11 @@ class SyntheticConfig:
     n_cameras: int = 4
     """Number of cameras on a circle around the ring, 2..8."""
 
+    camera_step_deg: float | None = None
+    """Angle around the ring from one camera to the next, in degrees, in [15, 360 / n_cameras];
+    None spreads them evenly (360 / n_cameras: two cameras face each other, 90 puts them a
+    quarter turn apart). The random draws are the same either way."""
+
     n_frames: int = 300
     """Number of synchronised frames. The script cycles exchange -> clinch -> range phases
     (~4.5 s per cycle); at 50 fps the first clinch contact is at ~1.7 s (frame ~85)."""
@@ -71,6 +76,13 @@ class SyntheticConfig:
     def __post_init__(self) -> None:
         if not 2 <= self.n_cameras <= 8:
             raise ValueError(f"SyntheticConfig.n_cameras must be in 2..8, got {self.n_cameras}")
+        if self.camera_step_deg is not None and not (
+            np.isfinite(self.camera_step_deg) and 15.0 <= self.camera_step_deg <= 360.0 / self.n_cameras
+        ):
+            raise ValueError(
+                f"SyntheticConfig.camera_step_deg must be in [15, {360.0 / self.n_cameras:g}] deg for"
+                f" {self.n_cameras} cameras (or None: evenly spread), got {self.camera_step_deg}"
+            )
         if self.n_frames < 2:
             raise ValueError(f"SyntheticConfig.n_frames must be >= 2, got {self.n_frames}")
         if not (np.isfinite(self.fps) and 5.0 <= self.fps <= 1000.0):

@@ -201,7 +201,7 @@ def make_mocap_scene(clips: tuple[str, str], cfg: SyntheticConfig) -> MocapScene
         motions.append(m)
         contacts.append(c)
     athletes, offset = place_pair(motions[0], motions[1], cfg.fps)
-    rig = make_rig(cfg.n_cameras, cfg.image_size_wh, cfg.fps, cfg.distortion, rng_rig)
+    rig = make_rig(cfg.n_cameras, cfg.image_size_wh, cfg.fps, cfg.distortion, rng_rig, cfg.camera_step_deg)
     limit = float(np.linalg.norm(rig.centers_world_m[:, :2], axis=1).min()) - CAMERA_CLEARANCE_M
     reach = float(np.linalg.norm(athletes[..., :2], axis=-1).max())
     if reach > limit:

@@ -17,13 +17,16 @@ def make_rig(
     fps: float,
     distortion: bool,
     rng: np.random.Generator,
+    step_deg: float | None = None,
 ) -> CameraRig:
-    """``n_cameras`` evenly spread (with jitter) on a circle of radius 6-7 m, 1.8-3.0 m high,
-    fx = 0.8-1.0 x width, principal point near the image centre. With ``distortion`` each
-    camera gets k1 in [-0.25, -0.1], a small k2 and a tiny tangential term."""
+    """``n_cameras`` on a circle of radius 6-7 m, 1.8-3.0 m high, ``step_deg`` apart around it
+    (None: evenly spread), each with ±7 deg of jitter; fx = 0.8-1.0 x width, principal point
+    near the image centre. With ``distortion`` each camera gets k1 in [-0.25, -0.1], a small k2
+    and a tiny tangential term. ``step_deg`` changes no random draw."""
     w, h = image_size_wh
     phase = rng.uniform(-np.pi, np.pi)
-    angles = phase + 2 * np.pi * np.arange(n_cameras) / n_cameras + rng.uniform(-0.12, 0.12, n_cameras)
+    steps = 2 * np.pi * np.arange(n_cameras) / n_cameras if step_deg is None else np.deg2rad(step_deg) * np.arange(n_cameras)
+    angles = phase + steps + rng.uniform(-0.12, 0.12, n_cameras)
     radius = rng.uniform(6.0, 7.0, n_cameras)
     height = rng.uniform(1.8, 3.0, n_cameras)
     fx = rng.uniform(0.8, 1.0, n_cameras) * w

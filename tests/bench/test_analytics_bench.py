@@ -47,3 +47,20 @@ def test_run_bench_on_ground_truth_joints() -> None:
 def test_run_bench_refuses_an_unknown_stance() -> None:
     with pytest.raises(ValueError, match="stances must be among orthodox, southpaw, mixed; got 'lefty'"):
         run_bench(seeds=[0], cameras=4, sources="gt", pose2sim="", stances="lefty")
+
+
+def test_run_bench_with_two_cameras_a_quarter_turn_apart() -> None:
+    """The layout is named in the rows; on the ground-truth joints (no cameras involved) it
+    scores what the default rig's bouts score: moving a camera changes no motion."""
+    kw = {"seeds": [0], "cameras": 2, "sources": "gt", "pose2sim": "", "stances": "orthodox"}
+    (quarter,) = run_bench(**kw, camera_step_deg=90)
+    (default,) = run_bench(**kw)
+    assert quarter["data"] == "synthetic (gt), cameras 90 deg apart" and quarter["camera_step_deg"] == 90.0
+    assert default["data"] == "synthetic (gt)" and default["camera_step_deg"] is None
+    scores = ("gt_punches", "detected", "matched", "recall", "type_acc_pct", "outcome_acc_pct", "clinch_f1")
+    assert quarter["gt_punches"] > 0 and {k: quarter[k] for k in scores} == {k: default[k] for k in scores}
+
+
+def test_run_bench_refuses_a_camera_step_out_of_range_before_any_bout() -> None:
+    with pytest.raises(ValueError, match=r"camera_step_deg must be in \[15, 90\] deg for 4 cameras"):
+        run_bench(seeds=[0], cameras=(4, 2), sources="gt", pose2sim="", camera_step_deg=200)
