@@ -259,7 +259,10 @@ def run_bench(
     names = [s.strip() for s in stances.split(",") if s.strip()]
     if not names or set(names) - set(STANCES):
         raise ValueError(f"bench analytics: stances must be among {', '.join(STANCES)}; got {stances!r}")
-    step = None if camera_step_deg is None else float(camera_step_deg)
+    try:
+        step = None if camera_step_deg is None else float(camera_step_deg)
+    except (TypeError, ValueError):
+        raise ValueError(f"bench analytics: camera_step_deg must be a number of degrees, got {camera_step_deg!r}") from None
     for n_cams in cams:  # before minutes of work: SyntheticConfig checks the range
         SyntheticConfig(n_cameras=n_cams, camera_step_deg=step)
     layout = "" if step is None else f", cameras {step:g} deg apart"

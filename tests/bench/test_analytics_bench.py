@@ -64,3 +64,5 @@ def test_run_bench_with_two_cameras_a_quarter_turn_apart() -> None:
 def test_run_bench_refuses_a_camera_step_out_of_range_before_any_bout() -> None:
     with pytest.raises(ValueError, match=r"camera_step_deg must be in \[15, 90\] deg for 4 cameras"):
         run_bench(seeds=[0], cameras=(4, 2), sources="gt", pose2sim="", camera_step_deg=200)
+    with pytest.raises(ValueError, match="camera_step_deg must be a number of degrees, got 'abc'"):
+        run_bench(seeds=[0], cameras=2, sources="gt", pose2sim="", camera_step_deg="abc")
