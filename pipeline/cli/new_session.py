@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from pipeline.schema.camera import CameraRig
@@ -187,8 +188,11 @@ def plan_new_session(
 
 
 def print_summary(console: Console, plan: NewSession) -> None:
-    """Cameras, frames, frame rate and athletes of a checked ``NewSession``; for a video session
-    also whether the models are present."""
+    """Cameras, frames, frame rate and athletes of a checked ``NewSession``; advice when no two
+    cameras see depth well (``pipeline.geometry.layout``); for a video session also whether the
+    models are present."""
+    from pipeline.geometry.layout import layout_advice
+
     cfg, rig = plan.config, plan.rig
     table = Table(title=f"session {cfg.name}")
     for c in ("camera", "input", "frames", "fps" if cfg.source == "video" else "persons found"):
@@ -200,6 +204,8 @@ def print_summary(console: Console, plan: NewSession) -> None:
     frames = sorted({cam.n_frames for cam in plan.cameras})
     span = str(frames[0]) if len(frames) == 1 else f"{frames[0]}-{frames[-1]} (the cameras differ)"
     console.print(f"cameras: {', '.join(rig.names)} ({rig.n_views})", soft_wrap=True)
+    if (advice := layout_advice(rig)) is not None:
+        console.print(f"  [yellow]{escape(advice)}[/]", soft_wrap=True)
     if plan.unused:
         console.print(f"not used (--cameras): {', '.join(plan.unused)}", soft_wrap=True)
     console.print(f"frames: {span}; fps: {rig.fps:.4g} (from the {plan.fps_source})", soft_wrap=True)

@@ -67,6 +67,7 @@ def test_video_session_with_a_camera_subset_athletes_and_models_dir(tmp_path: Pa
     assert "cameras: cam1, cam3 (2)" in r.output and "not used (--cameras): cam2" in r.output
     assert "frames: 5; fps: 50 (from the calibration)" in r.output
     assert "athletes: Ana, Bea, Cy (3 persons)" in r.output
+    assert "deg apart" not in r.output  # cam1 and cam3 stand a third of a turn apart: no layout advice
     from pipeline.stages.detect2d import Detect2DConfig
 
     assert f"missing person detector (detector): {Detect2DConfig().detector}" in r.output
@@ -86,6 +87,8 @@ def test_keypoint_session_summary(tmp_path: Path) -> None:
     assert r.exit_code == 0, r.output
     assert json.loads((s / "session.json").read_text())["athletes"] == ["Red", "Blue"]
     assert "frames: 4" in r.output and "athletes: Red, Blue (2 persons)" in r.output
+    # The two calibrated cameras stand on opposite sides of the ring: the summary says so.
+    assert "cam1 and cam2 look" in r.output and "(facing each other)" in " ".join(r.output.split())
 
 
 def _bad_cases(tmp_path: Path) -> dict[str, tuple[list[str], list[str]]]:
