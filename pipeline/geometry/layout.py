@@ -1,7 +1,7 @@
 """Camera layout advice: do any two cameras see depth well?
 
-Two cameras measure a point's depth along the line between them poorly when they face each
-other (their rays nearly line up) or look the same way from close by. On the synthetic bouts,
+Two cameras measure a point's depth poorly when their rays to it nearly line up: when they
+face each other, or look the same way from close by. On the synthetic bouts,
 two cameras facing each other (viewing directions 145-162 deg apart) missed more punches and
 measured glove speeds worse than two a quarter turn apart (76-97 deg):
 docs/design/analytics.md, "Two cameras facing each other".
@@ -45,7 +45,7 @@ def layout_advice(rig: CameraRig) -> str | None:
     else:
         what = f"no two of the {n} cameras are {lo:g}-{hi:g} deg apart (the nearest, {a} and {b}, look {deg:.0f} deg apart, {how})"
     return (
-        f"{what}: the depth along the line between them is poorly measured, so glove speeds are "
-        f"measured worse and punches can be missed. Put two cameras {lo:g}-{hi:g} deg apart, about a "
+        f"{what}: their rays to a fist nearly line up, so its depth is poorly measured, glove "
+        f"speeds are measured worse and punches can be missed. Put two cameras {lo:g}-{hi:g} deg apart, about a "
         f"quarter turn (docs/design/analytics.md, \"Two cameras facing each other\")."
     )
