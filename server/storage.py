@@ -129,6 +129,19 @@ def session_meta(session_dir: Path) -> dict[str, Any]:
             "auto_rerun": bool(cfg.auto_rerun)}
 
 
+def layout_note(session_dir: Path) -> str:
+    """``pipeline.geometry.layout.layout_advice`` for the session's cameras ("" when some two
+    see depth well, or when the calibration cannot be read yet)."""
+    from pipeline.geometry.layout import layout_advice
+    from pipeline.io.session_rig import session_rig
+    from pipeline.schema.session import SessionConfig
+
+    try:
+        return layout_advice(session_rig(session_dir, SessionConfig.load(session_dir))) or ""
+    except (ValueError, OSError, KeyError, TypeError):
+        return ""
+
+
 @contextmanager
 def session_lock(session_dir: Path) -> Iterator[None]:
     """Exclusive lock on a session's overlay files across processes."""

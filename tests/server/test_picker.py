@@ -38,6 +38,7 @@ def test_folder_session_run_job_page_and_delete(client: TestClient, tokens: dict
     r = client.post("/sessions/new/folder", data={"path": str(folder), "name": "picked", "date": "2026-11-01"},
                     follow_redirects=False)
     assert r.status_code == 303 and r.headers["location"].startswith("/?msg=created%20session")
+    assert "deg%20apart" not in r.headers["location"]  # three cameras a third of a turn apart: no layout advice
     (sid,) = _session_ids(client, tokens)
     page = client.get("/").text
     row = re.search(rf"<tr id='s{sid}'>.*?</tr>", page, re.S)
@@ -145,3 +146,15 @@ def test_roles_and_cross_site_posts(client: TestClient, tokens: dict, settings: 
     assert client.get(f"/api/jobs/{job_id}", headers=auth(tokens["admin"])).json()["status"] == "cancelled"
     assert 'id="job-status">cancelled<' in client.get(f"/jobs/{job_id}").text
     assert _session_ids(client, tokens) == [sid]
+
+
+def test_a_new_session_whose_two_cameras_face_each_other_gets_the_layout_advice(
+    client: TestClient, tokens: dict, settings: Settings
+) -> None:
+    folder = make_session(settings.allowed_roots[0] / "two", n_frames=5, n_cameras=2, stages=(), use_synthetic=False)
+    _sign_in(client, "admin", tokens)
+    r = client.post("/sessions/new/folder", data={"path": str(folder)}, follow_redirects=False)
+    assert r.status_code == 303
+    page = client.get(r.headers["location"]).text
+    assert "created session" in page and "cam0 and cam1 look" in page and "(facing each other)" in page
+    assert "about a quarter turn" in page

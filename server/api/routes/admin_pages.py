@@ -14,6 +14,7 @@ through a confirmation page.
 from __future__ import annotations
 
 from html import escape
+from pathlib import Path
 from typing import Annotated, Any
 from urllib.parse import quote
 
@@ -26,8 +27,8 @@ from server.api.routes.jobs import submit_job
 from server.api.routes.sessions import create_uploaded_session, register_folder, remove_session
 from server.core.config import Settings
 from server.core.security import role_at_least
-from server.models import JOB_TERMINAL, Job, JobCreate, User
-from server.storage import PathNotAllowed, resolve_allowed
+from server.models import JOB_TERMINAL, Bout, Job, JobCreate, User
+from server.storage import PathNotAllowed, layout_note, resolve_allowed
 
 router = APIRouter(tags=["pages"], include_in_schema=False)
 
@@ -95,6 +96,12 @@ def _back(message: str, to: str = "/") -> RedirectResponse:
     return RedirectResponse(f"{to}?msg={quote(message)}", status_code=status.HTTP_303_SEE_OTHER)
 
 
+def _with_layout(message: str, bout: Bout) -> str:
+    """``message`` and, when no two of the new session's cameras see depth well, the advice."""
+    note = layout_note(Path(bout.folder))
+    return f"{message}. {note}" if note else message
+
+
 def candidate_folders(settings: Settings, limit: int = 200) -> list[str]:
     """Session folders (holding ``session.json``) at most two levels under the allowed roots."""
     out: list[str] = []
@@ -124,7 +131,7 @@ def create_from_folder(
         _need(u, "admin")
         bout = register_folder(db, settings, resolve_allowed(path.strip(), settings), name.strip() or None, date,
                                True, u.name)
-        return _back(f"created session {bout.id} ({bout.name}) from {path.strip()}")
+        return _back(_with_layout(f"created session {bout.id} ({bout.name}) from {path.strip()}", bout))
 
     return _run_action(act)
 
@@ -157,7 +164,7 @@ def create_from_upload(
         bout = create_uploaded_session(db, settings, author=u.name, name=name, calibration=calibration, videos=vids,
                                        keypoints=kps, tracks=None, keypoint_format=keypoint_format, fps=fps,
                                        athletes=athletes, date=date)
-        return _back(f"created session {bout.id} ({bout.name}) from {1 + len(vids) + len(kps)} uploaded files")
+        return _back(_with_layout(f"created session {bout.id} ({bout.name}) from {1 + len(vids) + len(kps)} uploaded files", bout))
 
     return _run_action(act)
 
