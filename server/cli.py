@@ -88,7 +88,7 @@ def register_demo(settings: Settings, demo_session: Path) -> int:
     only make the worker compute everything again.
     """
     from pipeline.runner import stage_status
-    from server.storage import session_meta
+    from server.storage import bout_from_meta
 
     demo_session = Path(demo_session).resolve()
     engine = make_engine(settings.db_path)
@@ -96,10 +96,7 @@ def register_demo(settings: Settings, demo_session: Path) -> int:
     with Session(engine, expire_on_commit=False) as db:
         bout = next((b for b in db.exec(select(Bout)).all() if b.created_by == f"demo:{demo_session}"), None)
         if bout is None:
-            meta = session_meta(demo_session)
-            bout = crud.create_bout(db, bout=Bout(name=meta["name"], folder=str(demo_session), n_cameras=meta["n_cameras"],
-                                                  cameras=meta["cameras"], fps=meta["fps"], athletes=meta["athletes"],
-                                                  auto_rerun=meta["auto_rerun"], created_by=f"demo:{demo_session}"))
+            bout = crud.create_bout(db, bout=bout_from_meta(demo_session, f"demo:{demo_session}"))
         assert bout.id is not None
         if any(st != "fresh" for st in stage_status(demo_session).values()):
             crud.create_job(db, job_in=JobCreate(session_id=bout.id), requested_by="serve", reason="demo session")

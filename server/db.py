@@ -1,9 +1,9 @@
 """SQLite engine: WAL journal, foreign keys on, busy timeout, schema-version check.
 
 Migrations: the schema version lives in SQLite's ``PRAGMA user_version``. A new
-database is created at ``SCHEMA_VERSION``; an existing one with a different
-version is refused with a clear error (there is exactly one version so far; a
-future change bumps ``SCHEMA_VERSION`` and adds a step to ``MIGRATIONS``).
+database is created at ``SCHEMA_VERSION``; an older one is upgraded step by step
+through ``MIGRATIONS`` (v1 -> v2: ``session.layout_advice``), and a newer one is
+refused with a clear error.
 
 Transactions use the sqlite3 module's default: a write transaction starts at the
 first INSERT/UPDATE/DELETE, and plain SELECTs do not hold a read lock, so the API
@@ -26,9 +26,28 @@ from server import models  # noqa: F401  (registers the tables)
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 1
-# version -> function upgrading a connection from that version to version + 1
-MIGRATIONS: dict[int, Callable[[Any], None]] = {}
+SCHEMA_VERSION = 2
+"""Version of the tables this build writes (``PRAGMA user_version``)."""
+
+
+def _v1_layout_advice(conn: Any) -> None:
+    """v1 -> v2: sessions get ``layout_advice``, filled in from each folder's calibration (""
+    where it cannot be read; ``server.storage.session_meta``)."""
+    from server.storage import session_meta
+
+    conn.exec_driver_sql("ALTER TABLE session ADD COLUMN layout_advice VARCHAR NOT NULL DEFAULT ''")
+    for sid, folder in conn.exec_driver_sql("SELECT id, folder FROM session").fetchall():
+        try:
+            advice = session_meta(Path(folder))["layout_advice"] if folder else ""
+        except (ValueError, OSError, KeyError, TypeError) as e:  # a missing or broken session.json
+            log.warning("session %s: layout advice left empty (%s)", sid, e)
+            advice = ""
+        if advice:
+            conn.exec_driver_sql("UPDATE session SET layout_advice = ? WHERE id = ?", (advice, sid))
+
+
+MIGRATIONS: dict[int, Callable[[Any], None]] = {1: _v1_layout_advice}
+"""Version -> function upgrading a connection from that version to the next."""
 BUSY_TIMEOUT_S = 30.0
 
 

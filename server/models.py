@@ -96,6 +96,10 @@ class Bout(BoutBase, table=True):
     athletes: list[str] = Field(default_factory=list, sa_column=Column(JSON, nullable=False))
     created_at: datetime = Field(default_factory=utcnow)
     created_by: str = ""
+    layout_advice: str = ""
+    """Set when the session is created: why its cameras see depth poorly and what to change
+    (``pipeline.geometry.layout``); "" when two of them are 45-135 deg apart or the calibration
+    could not be read."""
 
 
 class BoutPublic(BoutBase):
@@ -108,6 +112,7 @@ class BoutPublic(BoutBase):
     athletes: list[str]
     created_at: datetime
     created_by: str
+    layout_advice: str = Field(default="", description="Why the cameras see depth poorly and what to change; '' when fine.")
 
 
 class FolderSessionCreate(SQLModel):

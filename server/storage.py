@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from server.core.config import Settings
+from server.models import Bout
 
 log = logging.getLogger(__name__)
 
@@ -111,35 +112,31 @@ def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | N
 
 
 def session_meta(session_dir: Path) -> dict[str, Any]:
-    """``name, n_cameras, cameras, fps, athletes`` of a session folder (best effort on the calibration:
-    a malformed one is reported by the job that reads it, not here)."""
+    """``name, n_cameras, cameras, fps, athletes, auto_rerun, layout_advice`` of a session folder (best
+    effort on the calibration: a malformed one is reported by the job that reads it, not here)."""
     from pipeline.schema.session import SessionConfig
 
     cfg = SessionConfig.load(session_dir)
     cams = list(cfg.cameras) or list(cfg.camera_inputs())
-    fps = float(cfg.fps)
+    fps, advice = float(cfg.fps), ""
     try:
+        from pipeline.geometry.layout import layout_advice
         from pipeline.io.session_rig import session_rig
 
         rig = session_rig(session_dir, cfg)
-        cams, fps = list(rig.names), float(rig.fps)
+        cams, fps, advice = list(rig.names), float(rig.fps), layout_advice(rig) or ""
     except (ValueError, OSError, KeyError, TypeError) as e:
         log.warning("%s: calibration not readable yet: %s", session_dir, e)
     return {"name": cfg.name, "n_cameras": len(cams), "cameras": cams, "fps": fps, "athletes": list(cfg.athletes),
-            "auto_rerun": bool(cfg.auto_rerun)}
+            "auto_rerun": bool(cfg.auto_rerun), "layout_advice": advice}
 
 
-def layout_note(session_dir: Path) -> str:
-    """``pipeline.geometry.layout.layout_advice`` for the session's cameras ("" when some two
-    see depth well, or when the calibration cannot be read yet)."""
-    from pipeline.geometry.layout import layout_advice
-    from pipeline.io.session_rig import session_rig
-    from pipeline.schema.session import SessionConfig
-
-    try:
-        return layout_advice(session_rig(session_dir, SessionConfig.load(session_dir))) or ""
-    except (ValueError, OSError, KeyError, TypeError):
-        return ""
+def bout_from_meta(session_dir: Path, created_by: str, **fields: Any) -> Bout:
+    """The ``Bout`` row of the session folder ``session_dir`` (``session_meta``); ``fields``
+    (``name``, ``date``, ``auto_rerun``) override what the folder says."""
+    meta = session_meta(session_dir)
+    keep = ("name", "n_cameras", "cameras", "fps", "athletes", "auto_rerun", "layout_advice")
+    return Bout(**{k: meta[k] for k in keep} | fields, folder=str(session_dir), created_by=created_by)
 
 
 @contextmanager

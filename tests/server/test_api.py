@@ -294,3 +294,18 @@ def test_malformed_video_fails_the_job_readably(client: TestClient, tokens: dict
     assert job["status"] == "failed" and job["error"].splitlines()[0].strip()  # first line: "<Error>: <message>"
     assert "Traceback" in job["error"]
     assert client.get(f"/api/jobs/{ok}", headers=admin).json()["status"] == "done"
+
+
+def test_a_session_whose_two_cameras_face_each_other_carries_the_layout_advice(
+    client: TestClient, tokens: dict, bout_folder: Path, settings: Settings
+) -> None:
+    admin = auth(tokens["admin"])
+    two = make_session(settings.allowed_roots[0] / "two", n_frames=5, n_cameras=2, stages=(), use_synthetic=False)
+    r = client.post("/api/batch", json={"sessions": [{"path": str(two)}, {"path": str(bout_folder)}]}, headers=admin)
+    assert r.status_code == 201, r.text
+    two_id, three_id = r.json()["sessions"]
+    advice = client.get(f"/api/sessions/{two_id}", headers=admin).json()["layout_advice"]
+    assert advice.startswith("cam0 and cam1 look ") and "(facing each other)" in advice
+    assert client.get(f"/api/sessions/{three_id}", headers=admin).json()["layout_advice"] == ""
+    listed = {s["id"]: s["layout_advice"] for s in client.get("/api/sessions", headers=admin).json()}
+    assert listed == {two_id: advice, three_id: ""}

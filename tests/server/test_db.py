@@ -89,3 +89,27 @@ def test_lost_job_is_requeued_then_failed_after_max_attempts(tmp_path: Path) -> 
         assert final is not None
         db.refresh(final)
         assert final.status == "failed" and "died 2 times" in (final.error or "")
+
+
+def test_a_v1_database_is_upgraded_with_each_sessions_layout_advice(tmp_path: Path) -> None:
+    from server.demo import make_session
+
+    two = make_session(tmp_path / "two", n_frames=5, n_cameras=2, stages=(), use_synthetic=False)
+    three = make_session(tmp_path / "three", n_frames=5, n_cameras=3, stages=(), use_synthetic=False)
+    engine = make_engine(tmp_path / "c.db")
+    init_db(engine)
+    with Session(engine) as db:  # rows as a v1 server wrote them: one folder gone since
+        for folder in (two, three, tmp_path / "gone"):
+            crud.create_bout(db, bout=Bout(name=folder.name, folder=str(folder)))
+    with engine.begin() as conn:  # back to the v1 table
+        conn.exec_driver_sql("ALTER TABLE session DROP COLUMN layout_advice")
+        conn.exec_driver_sql("PRAGMA user_version=1")
+    engine.dispose()
+    engine = make_engine(tmp_path / "c.db")
+    init_db(engine)
+    with engine.connect() as conn:
+        assert conn.execute(text("PRAGMA user_version")).scalar() == SCHEMA_VERSION == 2
+        rows = dict(conn.execute(text("SELECT name, layout_advice FROM session")).fetchall())
+    assert rows["two"].startswith("cam0 and cam1 look ") and "(facing each other)" in rows["two"]
+    assert rows["three"] == "" and rows["gone"] == ""
+    assert check_integrity(engine)["integrity"] == "ok"

@@ -45,6 +45,7 @@ def test_folder_session_run_job_page_and_delete(client: TestClient, tokens: dict
     assert row is not None
     created = client.get(f"/api/sessions/{sid}", headers=auth(tokens["admin"])).json()["created_at"]
     assert created[:10] in row.group(0) and created[11:16] in row.group(0) and "2026-11-01" in row.group(0)
+    assert "⚠ layout" not in row.group(0)
     assert f'action="/sessions/{sid}/run"' in row.group(0) and f'href="/sessions/{sid}/delete"' in row.group(0)
 
     r = client.post(f"/sessions/{sid}/run", follow_redirects=False)
@@ -158,3 +159,5 @@ def test_a_new_session_whose_two_cameras_face_each_other_gets_the_layout_advice(
     page = client.get(r.headers["location"]).text
     assert "created session" in page and "cam0 and cam1 look" in page and "(facing each other)" in page
     assert "about a quarter turn" in page
+    row = re.search(r"<tr id='s\d+'>.*?</tr>", page, re.S)
+    assert row is not None and "⚠ layout" in row.group(0) and "(facing each other)" in row.group(0)  # the tooltip

@@ -14,7 +14,6 @@ through a confirmation page.
 from __future__ import annotations
 
 from html import escape
-from pathlib import Path
 from typing import Annotated, Any
 from urllib.parse import quote
 
@@ -28,7 +27,7 @@ from server.api.routes.sessions import create_uploaded_session, register_folder,
 from server.core.config import Settings
 from server.core.security import role_at_least
 from server.models import JOB_TERMINAL, Bout, Job, JobCreate, User
-from server.storage import PathNotAllowed, layout_note, resolve_allowed
+from server.storage import PathNotAllowed, resolve_allowed
 
 router = APIRouter(tags=["pages"], include_in_schema=False)
 
@@ -98,8 +97,7 @@ def _back(message: str, to: str = "/") -> RedirectResponse:
 
 def _with_layout(message: str, bout: Bout) -> str:
     """``message`` and, when no two of the new session's cameras see depth well, the advice."""
-    note = layout_note(Path(bout.folder))
-    return f"{message}. {note}" if note else message
+    return f"{message}. {bout.layout_advice}" if bout.layout_advice else message
 
 
 def candidate_folders(settings: Settings, limit: int = 200) -> list[str]:

@@ -12,7 +12,7 @@ from server import crud
 from server.api.deps import AdminUser, SessionDep, SettingsDep
 from server.api.routes.jobs import validate_stage_range
 from server.models import BatchCreate, BatchResult, Bout, JobCreate
-from server.storage import new_session_dir, resolve_allowed, session_from_folder, session_meta
+from server.storage import bout_from_meta, new_session_dir, resolve_allowed, session_from_folder
 
 router = APIRouter(tags=["batch"])
 
@@ -30,10 +30,7 @@ def batch(db: SessionDep, settings: SettingsDep, user: AdminUser, body: BatchCre
             made.append(dest)
             session_from_folder(src, dest, settings, item.name)
             validate_stage_range(dest, body.from_stage, body.to_stage)
-            meta = session_meta(dest)
-            bouts.append(Bout(name=meta["name"], folder=str(dest), n_cameras=meta["n_cameras"], cameras=meta["cameras"],
-                              fps=meta["fps"], athletes=meta["athletes"], auto_rerun=meta["auto_rerun"],
-                              created_by=user.name))
+            bouts.append(bout_from_meta(dest, user.name))
     except BaseException:
         for d in made:
             shutil.rmtree(d, ignore_errors=True)

@@ -118,6 +118,13 @@ def _new_session_forms(folders: list[str], roots: list[str]) -> str:
 <button type="submit" id="create-upload">Upload and create</button></fieldset></form>"""
 
 
+def _layout_mark(b: Bout) -> str:
+    """A mark under the camera count whose tooltip holds the session's layout advice ("" if none)."""
+    if not b.layout_advice:
+        return ""
+    return f"<div class='stage layout' title='{escape(b.layout_advice, quote=True)}'>⚠ layout</div>"
+
+
 @router.get("/", response_class=HTMLResponse)
 def session_picker(db: SessionDep, settings: SettingsDep, user: CookieUser, msg: str = "") -> Any:
     if user is None:
@@ -133,7 +140,7 @@ def session_picker(db: SessionDep, settings: SettingsDep, user: CookieUser, msg:
         rows.append(
             f"<tr id='s{b.id}'><td>{b.id}</td><td>{escape(b.name)} (<a href='/sessions/{b.id}/report'>report</a>)</td>"
             f"<td>{b.created_at:%Y-%m-%d %H:%M}<div class='stage'>{escape(b.created_by)}</div></td><td>{escape(b.date)}</td>"
-            f"<td>{escape(', '.join(b.athletes))}</td><td>{b.n_cameras}</td><td>{b.fps:g}</td>"
+            f"<td>{escape(', '.join(b.athletes))}</td><td>{b.n_cameras}{_layout_mark(b)}</td><td>{b.fps:g}</td>"
             f"<td>{_job_cell(latest.get(b.id))}</td>{_actions(b, latest.get(b.id), user)}</tr>"
         )
     recent = sorted(jobs, key=lambda j: j.id or 0, reverse=True)[:30]

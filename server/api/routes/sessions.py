@@ -29,11 +29,11 @@ from server.models import (
     IdentityUpdate,
 )
 from server.storage import (
+    bout_from_meta,
     new_session_dir,
     resolve_allowed,
     safe_filename,
     session_from_folder,
-    session_meta,
 )
 
 log = logging.getLogger(__name__)
@@ -46,12 +46,10 @@ def register_folder(db: SessionDep, settings: Settings, src: Path, name: str | N
     dest = new_session_dir(settings)
     try:
         session_from_folder(src, dest, settings, name)
-        meta = session_meta(dest)
+        bout = bout_from_meta(dest, author, date=date, auto_rerun=auto_rerun)
     except BaseException:
         shutil.rmtree(dest, ignore_errors=True)
         raise
-    bout = Bout(name=meta["name"], date=date, auto_rerun=auto_rerun, folder=str(dest), n_cameras=meta["n_cameras"],
-                cameras=meta["cameras"], fps=meta["fps"], athletes=meta["athletes"], created_by=author)
     return crud.create_bout(db, bout=bout)
 
 
@@ -119,12 +117,10 @@ def create_uploaded_session(
         if unknown:
             raise ValueError(f"unknown stages {unknown}; known: {list(STAGE_ORDER)}")
         cfg.save(dest)
-        meta = session_meta(dest)
+        bout = bout_from_meta(dest, author, name=name, date=date, auto_rerun=auto_rerun)
     except BaseException:
         shutil.rmtree(dest, ignore_errors=True)
         raise
-    bout = Bout(name=name, date=date, auto_rerun=auto_rerun, folder=str(dest), n_cameras=meta["n_cameras"],
-                cameras=meta["cameras"], fps=meta["fps"], athletes=meta["athletes"], created_by=author)
     return crud.create_bout(db, bout=bout)
 
 
