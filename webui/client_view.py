@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, cast
 import cv2
 import viser
 
+from pipeline.geometry.layout import layout_advice
 from webui.analysis import compute_series
 from webui.clients import ClientUser
 from webui.colors import StalePalette
@@ -116,7 +117,7 @@ class ClientView:
         self.plot_cursor = PlotCursor((*plot_charts(self.plots), event_rows.chart))
         """The current-frame line on this view's plots and event chart (``webui.panels.plot_cursor``)."""
         with tabs.add_tab("Events"):
-            self.events = make_events(scope, [n for _, n in everyone], event_rows)
+            self.events = make_events(scope, [n for _, n in everyone], event_rows, layout_advice(data.rig) or "")
         with tabs.add_tab("Display"):
             self.display = make_display(scope, list(data.keypoints))
         with tabs.add_tab("Export"):

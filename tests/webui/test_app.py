@@ -115,9 +115,10 @@ def test_play_advances_frames(tmp_path: Path, server: viser.ViserServer) -> None
         app.timeline.play.value = True
         time.sleep(0.6)  # 25 fps x 2: about 30 frames
         app.timeline.play.value = False
+        time.sleep(0.1)  # a frame step already past the loop's Play check when Pause came may still land
         played = app.frame
         assert played > 3
-        time.sleep(0.2)
+        time.sleep(0.3)
         assert app.frame == played  # paused
     finally:
         app.close()

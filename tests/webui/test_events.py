@@ -92,3 +92,17 @@ def test_event_chart_points_follow_the_filters_and_keep_the_cursor(tmp_path: Pat
         assert chart.axes[-1]["splits"] == at_15 and chart.axes[1]["values"] == ("Red", "Blue")  # the cursor stays
     finally:
         app.close()
+
+
+def test_the_events_tab_warns_when_no_two_cameras_see_depth_well(tmp_path: Path, server: viser.ViserServer) -> None:
+    for n_views, warned in ((2, True), (3, False)):  # the fixture's cameras are evenly spread: 2 face each other
+        sdir = build_session(tmp_path / f"v{n_views}", n_frames=12, n_views=n_views)
+        app = ViewerApp(server, sdir, role="coach", max_image_width=160)
+        try:
+            layout = app.events.layout
+            assert layout.visible is warned
+            if warned:
+                assert layout.content.startswith("⚠ **Camera layout.** cam1 and cam2 look ")
+                assert "(facing each other)" in layout.content
+        finally:
+            app.close()

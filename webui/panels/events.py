@@ -50,6 +50,8 @@ class EventsHandles:
     legend: viser.GuiMarkdownHandle
     chart: viser.GuiUplotHandle
     """The event chart under the rows (``webui.panels.event_chart``)."""
+    layout: viser.GuiMarkdownHandle
+    """The camera-layout advice (``pipeline.geometry.layout``), shown only when there is one."""
 
 
 NO_EVENT = "(pick an event to jump to it)"
@@ -75,9 +77,12 @@ def make_events(
     server: Scope,
     athletes: list[str],
     rows: EventRows,
+    layout_advice: str = "",
 ) -> EventsHandles:
     """Filters, the event picker, the legend, the list and the summary (call it inside the Events
-    tab), with the rows and buttons ``make_event_rows`` made under the timeline."""
+    tab), with the rows and buttons ``make_event_rows`` made under the timeline; above them the
+    ``layout_advice`` when there is one (cameras that see depth poorly miss punches)."""
+    layout = server.gui.add_markdown(f"⚠ **Camera layout.** {layout_advice}", visible=bool(layout_advice))
     athlete = server.gui.add_dropdown("Athlete", (ALL, *athletes), initial_value=ALL,
                                       hint="Who threw the punch, or who defended")  # fmt: skip
     kind = server.gui.add_dropdown("Type", TYPE_OPTIONS, initial_value=ALL, hint="A punch type or a defence kind")
@@ -87,7 +92,8 @@ def make_events(
     legend = server.gui.add_markdown(LEGEND)
     listing = server.gui.add_markdown("")
     summary = server.gui.add_markdown("")
-    return EventsHandles(rows.rows, rows.prev, rows.next, athlete, kind, outcome, event, listing, summary, legend, rows.chart)
+    return EventsHandles(rows.rows, rows.prev, rows.next, athlete, kind, outcome, event, listing, summary, legend, rows.chart,
+                         layout)  # fmt: skip
 
 
 def matching_rows(h: EventsHandles, view: EventsView) -> Any:
