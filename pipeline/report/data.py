@@ -10,11 +10,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pipeline.schema.analytics import AthleteSeries, BoutEvents
 from pipeline.stages.analyze.periods import Period, bout_periods, slice_bout
+
+if TYPE_CHECKING:
+    from pipeline.schema import SessionConfig
 
 __all__ = ["ATHLETE_COLORS", "Period", "ReportData", "ReportOptions", "load_report_data", "mid_hip_positions", "periods", "slice_bout"]
 
@@ -61,6 +65,9 @@ class ReportData:
         rounds_s: (start, end) of each round in seconds from the first analysed frame; empty
             when the session gives no round times (the report then splits the bout in
             ``ReportOptions.period_s`` spans).
+        layout_advice: why the session's cameras see depth poorly, so that punches can be
+            missed (``pipeline.geometry.layout``); "" when two cameras are 45-135 deg apart or
+            the calibration cannot be read.
     """
 
     title: str
@@ -75,6 +82,7 @@ class ReportData:
     positions_valid: np.ndarray | None = None
     ring_xy_m: np.ndarray | None = None
     rounds_s: tuple[tuple[float, float], ...] = ()
+    layout_advice: str = ""
 
     def __post_init__(self) -> None:
         f, p = self.series.n_frames, self.series.person_ids.shape[0]
@@ -185,4 +193,17 @@ def load_report_data(session_dir: Path, names: dict[int, str] | None = None, col
         analysed_unix_s=float(m.created_unix_s) if m is not None else 0.0,
         positions_xy_m=pos[0] if pos else None, positions_valid=pos[1] if pos else None,
         ring_xy_m=np.array(cfg.ring_xy_m) if cfg.ring_xy_m else None, rounds_s=cfg.rounds_s,
+        layout_advice=_layout_advice(session_dir, cfg),
     )  # fmt: skip
+
+
+def _layout_advice(session_dir: Path, cfg: SessionConfig) -> str:
+    """``pipeline.geometry.layout.layout_advice`` of the session's cameras; "" when there is none
+    or the calibration cannot be read (the report is about the analysis, which exists)."""
+    from pipeline.geometry.layout import layout_advice
+    from pipeline.io.session_rig import session_rig
+
+    try:
+        return layout_advice(session_rig(session_dir, cfg)) or ""
+    except (ValueError, OSError, KeyError, TypeError):
+        return ""

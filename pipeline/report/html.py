@@ -167,7 +167,8 @@ def _meta(data: ReportData) -> str:
         parts.append(f"<b>Analysed:</b> {when}")
     parts.append(f"<b>Punches:</b> {data.events.n_punches} · <b>defence (slips, ducks, blocks, parries):</b> "
                  f"{data.events.n_evades} · <b>clinches:</b> {data.events.n_clinches}")  # fmt: skip
-    return '<div class="meta">' + " · ".join(parts[:3]) + "<br>" + " · ".join(parts[3:]) + "</div>"
+    layout = f'<p class="note layout">⚠ Camera layout: {esc(data.layout_advice)}</p>' if data.layout_advice else ""
+    return '<div class="meta">' + " · ".join(parts[:3]) + "<br>" + " · ".join(parts[3:]) + "</div>" + layout
 
 
 def _figures(items: list[tuple[str, str]]) -> str:

@@ -296,3 +296,21 @@ def test_rounds_and_ring_come_from_session_json(tmp_path: Path) -> None:
                      ({"ring_xy_m": [[0, 0], [1, 1]]}, "ring_xy_m"), ({"rounds_s": "1-2"}, "number pairs")):  # fmt: skip
         with pytest.raises(ValueError, match=why):
             SessionConfig.from_dict({**d, **bad})
+
+
+def test_the_report_names_a_camera_layout_that_sees_depth_poorly(tmp_path: Path) -> None:
+    from pipeline.io.calibration import save_toml
+    from tests.conftest import make_rig
+
+    folder = tmp_path / "bout"
+    write_analysed_bout(folder)
+    assert load_report_data(folder).layout_advice == ""  # no calibration file: nothing to say
+    assert "Camera layout" not in render_report(load_report_data(folder))
+    (folder / "inputs").mkdir(exist_ok=True)
+    save_toml(make_rig(2), folder / "inputs" / "calibration.toml")  # two cameras on opposite sides
+    data = load_report_data(folder)
+    assert data.layout_advice.startswith("cam1 and cam2 look ") and "(facing each other)" in data.layout_advice
+    note = parse(render_report(data)).find_all("p", **{"class": "note layout"})
+    assert len(note) == 1 and "⚠ Camera layout: cam1 and cam2 look" in note[0].text
+    save_toml(make_rig(3), folder / "inputs" / "calibration.toml")
+    assert load_report_data(folder).layout_advice == ""
