@@ -101,9 +101,15 @@ def init_db(engine: Engine) -> None:
         if step is None:
             raise ValueError(f"{engine.url.database}: no migration from schema version {version}")
         with engine.begin() as conn:
-            step(conn)
-            conn.exec_driver_sql(f"PRAGMA user_version={version + 1}")
-        version += 1
+            # One transaction holding the write lock: the API and the workers start together, and
+            # only the first to get here upgrades; the others then read the new version and skip.
+            conn.exec_driver_sql("BEGIN IMMEDIATE")
+            now = int(conn.exec_driver_sql("PRAGMA user_version").scalar() or 0)
+            if now == version:
+                step(conn)
+                conn.exec_driver_sql(f"PRAGMA user_version={version + 1}")
+                log.info("upgraded database %s to schema v%d", engine.url.database, version + 1)
+        version = max(now, version + 1)
     SQLModel.metadata.create_all(engine)  # no-op for existing tables
 
 

@@ -91,20 +91,70 @@ def test_lost_job_is_requeued_then_failed_after_max_attempts(tmp_path: Path) -> 
         assert final.status == "failed" and "died 2 times" in (final.error or "")
 
 
+def _v1_database(path: Path, folders: list[Path]) -> None:
+    """A database as a v1 server left it, one session row per folder."""
+    engine = make_engine(path)
+    init_db(engine)
+    with Session(engine) as db:
+        for folder in folders:
+            crud.create_bout(db, bout=Bout(name=folder.name, folder=str(folder)))
+    with engine.begin() as conn:
+        conn.exec_driver_sql("ALTER TABLE session DROP COLUMN layout_advice")
+        conn.exec_driver_sql("PRAGMA user_version=1")
+    engine.dispose()
+
+
+def test_servers_starting_together_upgrade_a_v1_database_once(tmp_path: Path) -> None:
+    import threading
+
+    _v1_database(tmp_path / "c.db", [tmp_path / "a", tmp_path / "b"])
+    errors: list[BaseException] = []
+
+    def start() -> None:
+        try:
+            init_db(make_engine(tmp_path / "c.db"))
+        except BaseException as e:  # noqa: BLE001  (reported below)
+            errors.append(e)
+
+    threads = [threading.Thread(target=start) for _ in range(4)]  # the API and three workers
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert errors == []
+    with make_engine(tmp_path / "c.db").connect() as conn:
+        assert conn.execute(text("PRAGMA user_version")).scalar() == SCHEMA_VERSION
+        cols = [r[1] for r in conn.execute(text("PRAGMA table_info(session)")).fetchall()]
+    assert cols.count("layout_advice") == 1
+
+
+def test_a_failed_upgrade_leaves_the_v1_database_as_it_was(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from server import db as server_db
+
+    _v1_database(tmp_path / "c.db", [tmp_path / "a"])
+
+    def broken(conn) -> None:  # noqa: ANN001
+        server_db._v1_layout_advice(conn)
+        raise RuntimeError("disk full")
+
+    monkeypatch.setitem(server_db.MIGRATIONS, 1, broken)
+    with pytest.raises(RuntimeError, match="disk full"):
+        init_db(make_engine(tmp_path / "c.db"))
+    with make_engine(tmp_path / "c.db").connect() as conn:
+        assert conn.execute(text("PRAGMA user_version")).scalar() == 1
+        assert "layout_advice" not in [r[1] for r in conn.execute(text("PRAGMA table_info(session)")).fetchall()]
+    monkeypatch.undo()
+    init_db(make_engine(tmp_path / "c.db"))  # a later start upgrades it
+    with make_engine(tmp_path / "c.db").connect() as conn:
+        assert conn.execute(text("PRAGMA user_version")).scalar() == SCHEMA_VERSION
+
+
 def test_a_v1_database_is_upgraded_with_each_sessions_layout_advice(tmp_path: Path) -> None:
     from server.demo import make_session
 
     two = make_session(tmp_path / "two", n_frames=5, n_cameras=2, stages=(), use_synthetic=False)
     three = make_session(tmp_path / "three", n_frames=5, n_cameras=3, stages=(), use_synthetic=False)
-    engine = make_engine(tmp_path / "c.db")
-    init_db(engine)
-    with Session(engine) as db:  # rows as a v1 server wrote them: one folder gone since
-        for folder in (two, three, tmp_path / "gone"):
-            crud.create_bout(db, bout=Bout(name=folder.name, folder=str(folder)))
-    with engine.begin() as conn:  # back to the v1 table
-        conn.exec_driver_sql("ALTER TABLE session DROP COLUMN layout_advice")
-        conn.exec_driver_sql("PRAGMA user_version=1")
-    engine.dispose()
+    _v1_database(tmp_path / "c.db", [two, three, tmp_path / "gone"])  # one folder gone since
     engine = make_engine(tmp_path / "c.db")
     init_db(engine)
     with engine.connect() as conn:
