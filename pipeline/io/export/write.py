@@ -8,14 +8,23 @@ import zipfile
 from pathlib import Path
 
 
+ZIP_DATE_TIME: tuple[int, int, int, int, int, int] = (1980, 1, 1, 0, 0, 0)
+"""Timestamp of every member of an export ZIP (the earliest a ZIP can hold): fixed, so that the
+same files always give the same bytes (checksums, re-downloads)."""
+
+
 def bundle(files: dict[str, bytes]) -> bytes:
-    """One file's bytes, or a ZIP (deflated) of several named files."""
+    """One file's bytes, or a ZIP (deflated) of several named files, in the given order, with
+    the same bytes for the same files (``ZIP_DATE_TIME``, permissions rw-r--r--)."""
     if len(files) == 1:
         return next(iter(files.values()))
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as z:
         for name, data in files.items():
-            z.writestr(name, data)
+            info = zipfile.ZipInfo(name, date_time=ZIP_DATE_TIME)
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info.external_attr = 0o644 << 16
+            z.writestr(info, data)
     return buf.getvalue()
 
 
