@@ -7,7 +7,6 @@ import os
 import zipfile
 from pathlib import Path
 
-
 ZIP_DATE_TIME: tuple[int, int, int, int, int, int] = (1980, 1, 1, 0, 0, 0)
 """Timestamp of every member of an export ZIP (the earliest a ZIP can hold): fixed, so that the
 same files always give the same bytes (checksums, re-downloads)."""
