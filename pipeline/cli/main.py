@@ -15,6 +15,7 @@ from rich.console import Console
 from rich.table import Table
 
 from pipeline.cli.dataset import app as dataset_app
+from pipeline.cli.summaries import one_line_summaries
 from pipeline.io.export.write import check_out as _check_out
 
 app = typer.Typer(
@@ -593,6 +594,7 @@ def _mount_subapps() -> None:
 
 
 _mount_subapps()
+one_line_summaries(app)
 
 
 def main() -> None:  # pragma: no cover - entry point
