@@ -97,9 +97,9 @@ class Bout(BoutBase, table=True):
     created_at: datetime = Field(default_factory=utcnow)
     created_by: str = ""
     layout_advice: str = ""
-    """Set when the session is created: why its cameras see depth poorly and what to change
-    (``pipeline.geometry.layout``); "" when two of them are 45-135 deg apart or the calibration
-    could not be read."""
+    """Why the session's cameras see depth poorly and what to change (``pipeline.geometry.layout``);
+    "" when two of them are 45-135 deg apart or the calibration could not be read. Set when the
+    session is created, and with the cameras and fps again when a job starts on a changed calibration."""
 
 
 class BoutPublic(BoutBase):

@@ -111,6 +111,25 @@ def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | N
     return cfg
 
 
+RIG_FIELDS = ("n_cameras", "cameras", "fps", "layout_advice")
+"""The ``Bout`` columns that come from a session's calibration (``rig_meta``)."""
+
+
+def rig_meta(session_dir: Path, cfg: Any) -> dict[str, Any] | None:
+    """``RIG_FIELDS`` of the session folder's calibration (``cfg``: its ``SessionConfig``), or None
+    when the calibration cannot be read yet (a job that reads it reports why)."""
+    from pipeline.geometry.layout import layout_advice
+    from pipeline.io.session_rig import session_rig
+
+    try:
+        rig = session_rig(session_dir, cfg)
+    except (ValueError, OSError, KeyError, TypeError) as e:
+        log.warning("%s: calibration not readable yet: %s", session_dir, e)
+        return None
+    return {"n_cameras": len(rig.names), "cameras": list(rig.names), "fps": float(rig.fps),
+            "layout_advice": layout_advice(rig) or ""}
+
+
 def session_meta(session_dir: Path) -> dict[str, Any]:
     """``name, n_cameras, cameras, fps, athletes, auto_rerun, layout_advice`` of a session folder (best
     effort on the calibration: a malformed one is reported by the job that reads it, not here)."""
@@ -118,17 +137,22 @@ def session_meta(session_dir: Path) -> dict[str, Any]:
 
     cfg = SessionConfig.load(session_dir)
     cams = list(cfg.cameras) or list(cfg.camera_inputs())
-    fps, advice = float(cfg.fps), ""
-    try:
-        from pipeline.geometry.layout import layout_advice
-        from pipeline.io.session_rig import session_rig
+    rig = rig_meta(session_dir, cfg) or {"n_cameras": len(cams), "cameras": cams, "fps": float(cfg.fps),
+                                          "layout_advice": ""}
+    return {"name": cfg.name, "athletes": list(cfg.athletes), "auto_rerun": bool(cfg.auto_rerun)} | rig
 
-        rig = session_rig(session_dir, cfg)
-        cams, fps, advice = list(rig.names), float(rig.fps), layout_advice(rig) or ""
-    except (ValueError, OSError, KeyError, TypeError) as e:
-        log.warning("%s: calibration not readable yet: %s", session_dir, e)
-    return {"name": cfg.name, "n_cameras": len(cams), "cameras": cams, "fps": fps, "athletes": list(cfg.athletes),
-            "auto_rerun": bool(cfg.auto_rerun), "layout_advice": advice}
+
+def rig_changes(bout: Bout) -> dict[str, Any]:
+    """The ``RIG_FIELDS`` of ``bout`` that its folder's calibration now gives otherwise (a calibration
+    replaced after the session was created); {} when none differ or it cannot be read."""
+    from pipeline.schema.session import SessionConfig
+
+    try:
+        meta = rig_meta(Path(bout.folder), SessionConfig.load(Path(bout.folder)))
+    except (ValueError, OSError) as e:
+        log.warning("%s: session.json not readable: %s", bout.folder, e)
+        return {}
+    return {k: v for k, v in (meta or {}).items() if getattr(bout, k) != v}
 
 
 def bout_from_meta(session_dir: Path, created_by: str, **fields: Any) -> Bout:

@@ -33,6 +33,7 @@ from server.core.config import Settings
 from server.db import init_db, make_engine
 from server.jobs.executors import Executor, JobSpec, make_executor
 from server.models import Bout, Job
+from server.storage import rig_changes
 
 log = logging.getLogger(__name__)
 
@@ -149,6 +150,11 @@ class Worker:
         session_dir = Path(bout.folder)
         progress: dict[str, Any] = {k: dict(v) for k, v in (job.progress or {}).items()}
         logs: deque[str] = deque(job.log_tail.splitlines() if job.log_tail else [], maxlen=self.settings.log_tail_lines)
+        if changes := rig_changes(bout):  # a calibration replaced since the session was made
+            with Session(self.engine) as db:
+                if (row := db.get(Bout, bout.id)) is not None:
+                    crud.update_bout(db, bout=row, changes=changes)
+            logs.append(f"[worker {self.worker_id}] the calibration changed: updated the session's {', '.join(changes)}")
         try:
             from server.storage import enabled_stage_names
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from pathlib import Path
@@ -82,3 +83,49 @@ def test_reading_a_session_never_removes_an_inflight_write(tmp_path: Path) -> No
         assert inflight.exists()
     ArtifactStore(tmp_path)  # no writer any more: the leftover of a crash is cleaned
     assert not inflight.exists()
+
+
+def test_a_job_refreshes_the_sessions_cameras_from_a_replaced_calibration(
+    client: TestClient, tokens: dict, settings: Settings
+) -> None:
+    """The layout advice stored at creation follows a calibration file replaced later (so do the
+    cameras and fps, through the same ``server.storage.rig_changes``)."""
+    import numpy as np
+
+    from pipeline.geometry.rotations import look_at_T_world_cam
+    from pipeline.io.calibration import load_calibration
+    from pipeline.io.calibration_toml import save_toml
+    from server.demo import make_session
+    from tests.server.conftest import run_jobs
+
+    admin = auth(tokens["admin"])
+    two = make_session(settings.allowed_roots[0] / "two", n_frames=5, n_cameras=2, use_synthetic=False)
+    bout = make_bout(client, tokens["admin"], two, name="two")
+    assert "(facing each other)" in bout["layout_advice"] and bout["fps"] == 50.0
+    calib = two / "inputs" / "calibration.toml"
+    rig = load_calibration(calib)
+    a = 0.3 + np.pi / 2  # cam1 a quarter turn from cam0 instead of opposite it
+    T1 = look_at_T_world_cam(np.array([6.5 * np.cos(a), 6.5 * np.sin(a), 2.2]), np.array([0.0, 0.0, 0.9]))
+    save_toml(dataclasses.replace(rig, T_world_cam=np.stack([rig.T_world_cam[0], T1])), calib)
+    # nothing changes before a job starts
+    assert client.get(f"/api/sessions/{bout['id']}", headers=admin).json()["layout_advice"] == bout["layout_advice"]
+    jid = client.post("/api/jobs", json={"session_id": bout["id"], "to_stage": "track"}, headers=admin).json()["id"]
+    assert run_jobs(settings) == 1
+    job = client.get(f"/api/jobs/{jid}", headers=admin).json()
+    assert job["status"] == "done", (job["error"], job["log_tail"])
+    assert "the calibration changed: updated the session's layout_advice" in job["log_tail"]
+    now = client.get(f"/api/sessions/{bout['id']}", headers=admin).json()
+    assert (now["layout_advice"], now["fps"], now["cameras"]) == ("", 50.0, ["cam0", "cam1"])
+
+
+def test_rig_changes_names_what_differs_and_keeps_all_on_an_unreadable_calibration(tmp_path: Path) -> None:
+    from server.demo import make_session
+    from server.storage import bout_from_meta, rig_changes
+
+    s = make_session(tmp_path / "s", n_frames=3, n_cameras=2, use_synthetic=False)
+    bout = bout_from_meta(s, "test")
+    assert rig_changes(bout) == {}
+    bout.cameras, bout.n_cameras = ["a", "b", "c"], 3
+    assert rig_changes(bout) == {"cameras": ["cam0", "cam1"], "n_cameras": 2}
+    (s / "inputs" / "calibration.toml").write_text("not = [a toml")
+    assert rig_changes(bout) == {}  # a job reading it reports the problem; the stored fields stay
