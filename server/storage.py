@@ -70,9 +70,10 @@ def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | N
     """Write ``dest/session.json`` describing the inputs of server-side folder ``src``.
 
     ``src`` holds a ``session.json`` (its relative paths are made absolute and must stay
-    under an allowed root), or inputs: one calibration file (``*.toml``, ``*.qca.txt``)
+    under an allowed root), or inputs: one calibration file (``*.toml``, ``*.qca.txt``, ``*.qca``)
     and videos (``<camera>.mp4|avi|mov|mkv|webm``). Returns the ``SessionConfig``.
     """
+    from pipeline.io.calibration import calibration_files
     from pipeline.runner.core import check_stage_configs
     from pipeline.schema.session import SessionConfig
 
@@ -93,11 +94,11 @@ def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | N
             (dest / "annotations.json").write_bytes((src / "annotations.json").read_bytes())
     else:
         files = sorted(p for p in src.iterdir() if p.is_file())
-        calibs = [p for p in files if p.suffix.lower() == ".toml" or p.name.lower().endswith(".qca.txt")]
+        calibs = calibration_files(src)
         videos = {p.stem: str(p) for p in files if p.suffix.lower() in VIDEO_SUFFIXES}
         if len(calibs) != 1 or not videos:
             raise ValueError(
-                f"{src}: no session.json, and not an inputs folder (needs exactly one calibration *.toml/*.qca.txt, "
+                f"{src}: no session.json, and not an inputs folder (needs exactly one calibration *.toml/*.qca.txt/*.qca, "
                 f"found {len(calibs)}, and at least one video, found {len(videos)})"
             )
         cfg = SessionConfig(name=name or src.name, source="video", calibration=str(calibs[0]), videos=videos)

@@ -401,7 +401,7 @@ def _export_calibration(session: Path, cfg: Any, path: Path) -> None:
 @app.command()
 def new(
     session: Annotated[Path, typer.Argument(help="Session folder to create.")],
-    calibration: Annotated[Path, typer.Option(help="Calibration file or folder.")],
+    calibration: Annotated[Path, typer.Option(help="Calibration file (.toml, .qca.txt, .json), EasyMocap folder, or a folder holding one .toml or .qca.txt.")],
     video: Annotated[list[str], typer.Option(help="CAM=PATH, repeated, one per camera.")] = [],  # noqa: B006
     keypoints: Annotated[list[str], typer.Option(help="CAM=PATH of 2D keypoints, repeated.")] = [],  # noqa: B006
     keypoint_format: Annotated[str, typer.Option(help="openpose or coco.")] = "openpose",

@@ -143,14 +143,13 @@ def plan_new_session(
     unknown or too few cameras (a 3D reconstruction needs two); missing, duplicate or
     unreadable videos / keypoints; inputs whose cameras do not match the calibration;
     keypoints without any person; a bad ``--athlete`` list or ``--models-dir``."""
-    from pipeline.io.calibration import load_calibration
+    from pipeline.io.calibration import load_calibration, resolve_calibration
     from pipeline.io.session_rig import check_multiview, session_fps, session_rig
     from pipeline.runner.core import check_stage_configs
 
     if (session_dir / "session.json").exists():
         raise ValueError(f"{session_dir / 'session.json'} exists already; choose another folder")
-    if not calibration.exists():
-        raise ValueError(f"{calibration}: calibration not found")
+    calibration = resolve_calibration(calibration)  # a folder with one calibration file gives that file
     vids, kps = parse_pairs(videos, "--video"), parse_pairs(keypoints, "--keypoints")
     if bool(vids) == bool(kps):
         raise ValueError("give either --video CAM=PATH ... or --keypoints CAM=PATH ..., not both or neither")

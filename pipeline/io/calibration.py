@@ -25,7 +25,7 @@ from pipeline.io.calibration_qualisys import load_qualisys
 from pipeline.io.calibration_toml import load_toml, save_toml
 from pipeline.schema.camera import CameraRig
 
-__all__ = ["SUPPORTED_FORMATS", "load_calibration", "rotate_images_cw", "save_toml"]
+__all__ = ["SUPPORTED_FORMATS", "calibration_files", "load_calibration", "resolve_calibration", "rotate_images_cw", "save_toml"]
 
 SUPPORTED_FORMATS = (
     "Pose2Sim/anipose .toml",
@@ -33,6 +33,28 @@ SUPPORTED_FORMATS = (
     f"EasyMocap folder with {INTRI_NAME} + {EXTRI_NAME} (or either file)",
     "Campus/Shelf-style .json",
 )
+
+
+def calibration_files(folder: Path) -> list[Path]:
+    """The files directly in ``folder`` named as a calibration (``*.toml``, ``*.qca.txt``,
+    ``*.qca``), sorted. JSON files are left out: an inputs folder's JSON is usually keypoints."""
+    return sorted(p for p in folder.iterdir() if p.is_file() and p.name.lower().endswith((".toml", ".qca.txt", ".qca")))
+
+
+def resolve_calibration(path: Path) -> Path:
+    """``path`` itself, or for a folder that is not an EasyMocap one the single calibration file
+    in it (``calibration_files``). Raises ``ValueError`` naming the path when it does not exist or
+    the folder holds none or several."""
+    if not path.exists():
+        raise ValueError(f"{path}: calibration not found")
+    if not path.is_dir() or (path / INTRI_NAME).exists() or (path / EXTRI_NAME).exists():
+        return path
+    found = calibration_files(path)
+    if len(found) != 1:
+        what = "no calibration file (*.toml, *.qca.txt, *.qca)" if not found else (
+            f"several calibration files ({', '.join(p.name for p in found)})")
+        raise ValueError(f"{path}: a folder, but not an EasyMocap one ({INTRI_NAME} + {EXTRI_NAME}), and it holds {what}; give the file")
+    return found[0]
 
 
 def _sniff(path: Path) -> str | None:

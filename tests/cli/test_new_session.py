@@ -127,13 +127,15 @@ def _bad_cases(tmp_path: Path) -> dict[str, tuple[list[str], list[str]]]:
                                ["--athlete"]),
         "models dir missing": (["--calibration", calib, *_videos(tmp_path), "--models-dir", str(tmp_path / "nope")],
                                ["--models-dir", "not a folder"]),
+        "folder of several calibrations": (["--calibration", str(tmp_path), *_videos(tmp_path)],
+                                       [str(tmp_path), "several calibration files (calib1.toml, calib3.toml, empty.toml)"]),
     }
 
 
 CASES = (
     "duplicate camera", "unknown --cameras", "one camera selected", "one-camera calibration", "camera not calibrated",
     "camera without video", "broken video", "unreadable calibration", "empty COCO file", "COCO file without persons",
-    "same athlete twice", "models dir missing",
+    "same athlete twice", "models dir missing", "folder of several calibrations",
 )  # fmt: skip
 
 
@@ -157,3 +159,14 @@ def test_an_existing_session_is_not_overwritten(tmp_path: Path) -> None:
     r = runner.invoke(app, ["new", str(s), "--calibration", calib, *_videos(tmp_path), "--athlete", "X"])
     assert r.exit_code == 2 and "exists already" in r.output
     assert (s / "session.json").read_text() == before
+
+
+def test_a_folder_holding_one_calibration_file_stands_for_it(tmp_path: Path) -> None:
+    """As the Pose2Sim sample ships it: ``calibration/Calib.qca.txt``; session.json names the file."""
+    folder = tmp_path / "calibration"
+    folder.mkdir()
+    calib = _calibration(folder)
+    s = tmp_path / "bout"
+    r = runner.invoke(app, ["new", str(s), "--calibration", str(folder), *_videos(tmp_path)])
+    assert r.exit_code == 0, r.output
+    assert json.loads((s / "session.json").read_text())["calibration"] == str(calib.resolve())

@@ -281,3 +281,22 @@ def test_toml_metadata_and_offset_errors(tmp_path: Path) -> None:
         load_calibration(bad)
     bad.write_text(TOML.read_text().replace("error = 0.0", "error = 0.0\nfps = 60.0"))
     assert load_calibration(bad).fps == 60.0
+
+
+def test_resolve_calibration_finds_the_one_file_in_a_folder(tmp_path: Path) -> None:
+    from pipeline.io.calibration import resolve_calibration
+
+    assert resolve_calibration(QCA) == QCA and resolve_calibration(EASYMOCAP) == EASYMOCAP
+    inputs = tmp_path / "calibration"
+    inputs.mkdir()
+    shutil.copy(QCA, inputs / QCA.name)
+    (inputs / "notes.json").write_text("{}")  # JSON in an inputs folder is not taken for a calibration
+    assert resolve_calibration(inputs) == inputs / QCA.name
+    shutil.copy(TOML, inputs / TOML.name)
+    with pytest.raises(ValueError, match=r"calibration: a folder, .* several calibration files \(Calib\.qca\.txt, Calib_qualisys\.toml\)"):
+        resolve_calibration(inputs)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match=r"empty: a folder, .* no calibration file"):
+        resolve_calibration(tmp_path / "empty")
+    with pytest.raises(ValueError, match="calibration not found"):
+        resolve_calibration(tmp_path / "missing.toml")
