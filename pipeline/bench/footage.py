@@ -139,14 +139,14 @@ def prepare_work_dir(work_dir: Path, session: SessionConfig, fresh: bool) -> Non
 
 
 def _run_stages(work_dir: Path) -> list[Any]:
-    """Run the session with rich progress bars (as ``cornerman run``); the ``StageReport``s."""
+    """Run the session with progress (as ``cornerman run``); the ``StageReport``s."""
     from rich.console import Console
 
-    from pipeline.cli.progress import RichProgress, summary_table
+    from pipeline.cli.progress import progress_for, summary_table
     from pipeline.runner import run
 
     console = Console()
-    with RichProgress(console) as prog:
+    with progress_for(console) as prog:
         reports = run(work_dir, progress=prog)
     console.print(summary_table(reports))
     return reports

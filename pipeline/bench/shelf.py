@@ -147,10 +147,10 @@ def _to_stage(stages: str) -> str | None:
 def _run(session: Path, to_stage: str | None) -> list[Any]:
     from rich.console import Console
 
-    from pipeline.cli.progress import RichProgress
+    from pipeline.cli.progress import progress_for
     from pipeline.runner import run
 
-    with RichProgress(Console()) as prog:
+    with progress_for(Console()) as prog:
         return run(session, to_stage=to_stage, progress=prog)
 
 

@@ -57,10 +57,10 @@ def _fail(msg: str) -> None:
 
 
 def _run_with_progress(session: Path, from_stage: str | None, to_stage: str | None, force: bool) -> list[Any]:
-    from pipeline.cli.progress import RichProgress, summary_table
+    from pipeline.cli.progress import progress_for, summary_table
     from pipeline.runner import run
 
-    with RichProgress(console) as prog:
+    with progress_for(console) as prog:
         reports = run(session, from_stage=from_stage, to_stage=to_stage, force=force, progress=prog)
     console.print(summary_table(reports))
     return reports

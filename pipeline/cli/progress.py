@@ -1,7 +1,10 @@
-"""Rich progress bars and the end-of-run summary table for the CLI."""
+"""Progress of a run for the CLI (bars on a terminal, lines in a log or pipe) and the end-of-run
+summary table."""
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from typing import Any
 
 from rich.console import Console
@@ -64,6 +67,50 @@ class RichProgress:
         t = self.progress.tasks[self.tasks[stage]] if isinstance(self.tasks[stage], int) else None
         total = t.total if t is not None and t.total else 1.0
         self.progress.update(self.tasks[stage], completed=total, total=total, message="fresh, skipped" if status == "skipped" else "done")
+
+
+class LineProgress:
+    """A ``ProgressSink`` printing a line when a stage starts and ends, and in between at most one
+    line per ``every_s`` seconds (> 0) per stage. For logs and pipes, where rich draws its bars only
+    once, at the end of the run."""
+
+    def __init__(self, console: Console, every_s: float = 30.0, clock: Callable[[], float] = time.monotonic) -> None:
+        if not every_s > 0:
+            raise ValueError(f"LineProgress: every_s must be > 0, got {every_s}")
+        self.console, self.every_s, self.clock = console, every_s, clock
+        self.last: dict[str, float] = {}
+
+    def __enter__(self) -> LineProgress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def _say(self, text: str) -> None:
+        self.console.print(f"{time.strftime('%H:%M:%S')} {text}", markup=False, highlight=False, soft_wrap=True)
+
+    def stage_started(self, stage: str, total: float | None) -> None:
+        self.last[stage] = self.clock()
+        self._say(f"{stage}: started")
+
+    def stage_progress(self, stage: str, done: float, total: float | None, message: str) -> None:
+        now = self.clock()
+        if stage in self.last and now - self.last[stage] < self.every_s:
+            return
+        self.last[stage] = now
+        part = f"{100.0 * done / total:.0f} %" if total else f"{done:g}"
+        self._say(f"{stage}: {part}" + (f", {message}" if message else ""))
+
+    def stage_finished(self, stage: str, status: str, duration_s: float, metrics: dict[str, Any]) -> None:
+        self.last.pop(stage, None)
+        what = "fresh, skipped" if status == "skipped" else f"done in {duration_s:.1f} s"
+        metric = key_metric(stage, metrics)
+        self._say(f"{stage}: {what}" + (f" ({metric})" if metric else ""))
+
+
+def progress_for(console: Console) -> RichProgress | LineProgress:
+    """Bars when ``console`` is a terminal, else lines (``LineProgress``)."""
+    return RichProgress(console) if console.is_terminal else LineProgress(console)
 
 
 def _fmt(v: Any) -> str:
