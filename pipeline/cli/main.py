@@ -230,7 +230,7 @@ def export(
     session: Annotated[Path, typer.Argument(help="Session folder.")],
     format: Annotated[str, typer.Option("--format", "-f", help=_FORMAT_HELP)] = "json",
     source: Annotated[str, typer.Option(help="best (fit, else filtered), latest (physics, else fit, else filtered), raw, filtered, fit or physics.")] = "best",
-    out: Annotated[Path | None, typer.Option("--out", "-o", help="Output file (a ZIP when the format writes several files).")] = None,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Output file; a .zip when the export is several files (e.g. BVH of two athletes).")] = None,
     athlete: Annotated[
         list[str], typer.Option("--athlete", "-a", help="Athlete name or person id, repeated; default every athlete.")
     ] = [],  # noqa: B006

@@ -43,8 +43,15 @@ def check_out(path: Path) -> None:
 
 
 def write_files(files: dict[str, bytes], path: Path) -> Path:
-    """Write ``files`` to ``path`` atomically (temporary file + rename); no stray file on failure."""
+    """Write ``files`` to ``path`` atomically (temporary file + rename); no stray file on failure.
+    Several files are one ZIP, so ``path`` must then end in ``.zip`` (``ValueError``): a ZIP named
+    ``out.bvh`` would not open as BVH."""
     check_out(path)
+    if len(files) > 1 and path.suffix.lower() != ".zip":
+        raise ValueError(
+            f"--out {path}: this export is {len(files)} files ({', '.join(files)}), written as one ZIP; "
+            "give a name ending in .zip"
+        )
     data = bundle(files)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:

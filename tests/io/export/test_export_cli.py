@@ -106,3 +106,13 @@ def test_unknown_format_and_bad_frames(session: Path, tmp_path: Path) -> None:
     )
     assert r.exit_code == 2 and "FIRST:STOP" in r.output
     assert list(tmp_path.iterdir()) == []
+
+
+def test_several_files_need_a_zip_name(session: Path, tmp_path: Path) -> None:
+    """The MuJoCo export is a scene and its meshes: named *.xml it would be a ZIP that no tool opens."""
+    r = runner.invoke(app, ["export", str(session), "-f", "mujoco", "-o", str(tmp_path / "scene.xml")])
+    assert r.exit_code == 2 and "give a name ending in .zip" in r.output and "files (" in r.output, r.output
+    assert list(tmp_path.iterdir()) == []
+    r = runner.invoke(app, ["export", str(session), "-f", "mujoco", "-o", str(tmp_path / "scene.ZIP")])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "scene.ZIP").read_bytes()[:2] == b"PK"
