@@ -185,6 +185,14 @@ NPZ_LAYOUTS: dict[str, tuple[ArraySpec, ...]] = {
         ArraySpec("contact_body", "iu", ("contacts", 2), "indices into body_names"),
         ArraySpec("contact_depth_m", "f", ("contacts",), "penetration depth, metres (positive = overlap)"),
         ArraySpec("__strtuple__body_names", "U", ("bodies",), "MuJoCo body names referenced by contact_body"),
+        ArraySpec(
+            "untrackable", "b", ("frames", "persons"),
+            "True where the person's window could not be tracked without the residual root force",
+        ),
+        ArraySpec(
+            "observed", "b", ("frames", "persons"),
+            "True where the person had valid input joints (elsewhere simulated, not their motion)",
+        ),
     ),
 }
 """Array layout of each NPZ kind. ``keypoints3d``, ``bodyfit`` and ``physics`` are cornerman's schema

@@ -12,6 +12,7 @@ import hashlib
 import io
 import json
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +60,14 @@ def write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)  # type: ignore[arg-type]  # numpy stub, see schema.base
     path.write_bytes(buf.getvalue())
+
+
+def release_physics(res: PhysicsResult) -> PhysicsResult:
+    """``res`` with ``observed`` and ``untrackable`` as (frames, persons) arrays, also for a result
+    written before they were recorded ((0, 0): observed everywhere, never untrackable)."""
+    shape = (res.frame_indices.shape[0], res.person_ids.shape[0])
+    untrackable = res.untrackable if res.untrackable.shape == shape else np.zeros(shape, dtype=bool)
+    return replace(res, observed=res.observed_mask(), untrackable=untrackable)
 
 
 def calibration_doc(rig: CameraRig, origin: str) -> dict[str, Any]:
@@ -253,7 +262,7 @@ def write_session(
 
     if status.get("physics") not in (None, "missing") and store.has("physics", "result.npz"):
         step("physics")
-        res = store.load("physics", "result", PhysicsResult)
+        res = release_physics(store.load("physics", "result", PhysicsResult))
         write_npz(dest / "physics" / "result.npz", to_arrays(res))
         (dest / "physics" / "scene.xml").write_bytes(store.path("physics", "scene.xml").read_bytes())
         files += [
