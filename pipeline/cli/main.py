@@ -112,7 +112,7 @@ def run_cmd(
     session: Annotated[Path, typer.Argument(help="Session folder (with session.json).")],
     from_stage: Annotated[str | None, typer.Option("--from-stage", help="Re-run from this stage on.")] = None,
     to_stage: Annotated[str | None, typer.Option("--to-stage", help="Stop after this stage.")] = None,
-    force: Annotated[bool, typer.Option(help="Re-run every stage even when fresh.")] = False,
+    force: Annotated[bool, typer.Option(help="Re-run in full, reusing nothing of the previous run: every stage, or with --from-stage that stage and the later ones.")] = False,
     body_model: Annotated[
         str | None, typer.Option("--body-model", help="fit: anny, smpl or smplx (saved in session.json).")
     ] = None,

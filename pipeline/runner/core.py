@@ -173,8 +173,9 @@ def run(
 ) -> list[StageReport]:
     """Run the session's stages in order up to ``to_stage``.
 
-    A stage runs when it is missing or stale, when ``force`` is set, or when it is
-    at or after ``from_stage``; otherwise it is skipped. Each stage's outputs are
+    A stage runs when it is missing or stale, or when it is at or after ``from_stage``;
+    otherwise it is skipped. ``force`` runs in full (no reuse of the previous run) every stage
+    from ``from_stage`` on, or every stage without ``from_stage``. Each stage's outputs are
     written atomically, so an exception (or a kill) mid-stage leaves all earlier
     artifacts intact and a later ``run`` resumes from the first incomplete stage.
     """
@@ -207,7 +208,8 @@ def run(
             and m.config_hash == chash
             and m.code_version == _code_version(spec)
         )
-        if fresh and not force and i < first_forced:
+        forced = force and (from_stage is None or i >= first_forced)
+        if fresh and not forced and i < first_forced:
             sink.stage_finished(name, "skipped", 0.0, m.metrics if m else {})
             reports.append(StageReport(name, "skipped", 0.0, m.metrics if m else {}))
             continue
@@ -216,7 +218,7 @@ def run(
             raise ValueError(f"stage {name!r} needs {missing}, which have no artifacts")
         log.info("running stage %s", name)
         sink.stage_started(name, None)
-        ctx.previous = previous_run(m, chash, _code_version(spec), force)
+        ctx.previous = previous_run(m, chash, _code_version(spec), forced)
         t0 = time.perf_counter()
         outputs = spec.execute(ctx, cfg)
         dt = time.perf_counter() - t0

@@ -43,8 +43,9 @@ DONE_STATUSES = ("ran", "skipped")
 def resume_plan(job: Job, enabled: list[str]) -> tuple[str | None, bool]:
     """``(from_stage, force)`` to run now, given the stages this job already completed.
 
-    A forced range resumes at its first stage not completed by an earlier attempt, so
-    completed stages are neither re-run nor lost.
+    A range resumes at its first stage not completed by an earlier attempt, still forced when
+    the job is (``force`` applies from ``from_stage`` on), so completed stages are neither
+    re-run nor lost.
     """
     if not (job.from_stage or job.force):
         return None, False
@@ -55,7 +56,9 @@ def resume_plan(job: Job, enabled: list[str]) -> tuple[str | None, bool]:
     if not done:
         return job.from_stage, job.force
     remaining = [s for s in forced if s not in done]
-    return (remaining[0] if remaining else None), False
+    if not remaining:
+        return None, False
+    return remaining[0], job.force
 
 
 class Worker:

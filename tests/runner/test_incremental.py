@@ -74,8 +74,10 @@ def test_the_manifest_records_what_an_incremental_physics_run_reused(tmp_path: P
     assert third.metrics["incremental"] == "full run: the stage config changed"
     assert third.metrics["reused_frames"] == 0 and "previous_outputs_hash" not in third.metrics
 
-    # A forced run recomputes too, even with nothing changed.
+    # A forced run recomputes too, even with nothing changed; so does one forced from the stage.
     (forced,) = run(s, force=True)
+    assert forced.metrics["incremental"] == "full run: forced re-run" and forced.metrics["reused_frames"] == 0
+    (forced,) = run(s, from_stage="physics", force=True)
     assert forced.metrics["incremental"] == "full run: forced re-run" and forced.metrics["reused_frames"] == 0
 
     # ``incremental: false`` in the stage config turns reuse off.

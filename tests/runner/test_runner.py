@@ -71,6 +71,14 @@ def test_from_stage_forces_rerun(tiny_session: Path) -> None:
         run(tiny_session, from_stage="physics")
 
 
+def test_force_with_from_stage_forces_that_stage_on_only(tiny_session: Path) -> None:
+    run(tiny_session)
+    reports = run(tiny_session, from_stage="track", force=True)
+    assert [(r.stage, r.action) for r in reports] == [("detect2d", "skipped"), ("track", "ran")]
+    reports = run(tiny_session, force=True)
+    assert [(r.stage, r.action) for r in reports] == [("detect2d", "ran"), ("track", "ran")]
+
+
 def test_bad_stage_config_is_a_clear_error(tiny_session: Path) -> None:
     cfg = json.loads((tiny_session / "session.json").read_text())
     cfg["stage_config"] = {"track": {"nonsense": 1}}

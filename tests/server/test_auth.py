@@ -33,6 +33,8 @@ def _routes(sid: int, folder: Path, aid: int, jid: int) -> list[tuple[str, str, 
         ("annotator", "POST", f"/api/sessions/{sid}/annotations", {"json": swap}),
         ("annotator", "POST", f"/api/annotations/{aid}/undo", {"json": {"rerun": False}}),
         ("annotator", "POST", "/api/jobs", {"json": {"session_id": sid, "from_stage": "track"}}),
+        # forcing from a stage after the 2D one: the 2D stage is not forced
+        ("annotator", "POST", "/api/jobs", {"json": {"session_id": sid, "from_stage": "track", "force": True}}),
         ("admin", "POST", "/api/jobs", {"json": {"session_id": sid, "force": True}}),
         ("admin", "POST", "/api/sessions/from-folder", {"json": {"path": str(folder)}}),
         ("admin", "PATCH", f"/api/sessions/{sid}", {"json": {"date": "2026-11-21"}}),

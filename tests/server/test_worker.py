@@ -28,7 +28,7 @@ def test_resume_plan() -> None:
     assert resume_plan(_job(from_stage="track"), ORDER) == ("track", False)
     # forced, killed after detect2d+track: resume at associate, forcing it and later only
     j = _job(force=True, progress={"detect2d": ran, "track": ran, "associate": {"status": "running"}})
-    assert resume_plan(j, ORDER) == ("associate", False)
+    assert resume_plan(j, ORDER) == ("associate", True)
     j = _job(from_stage="track", progress={"detect2d": {"status": "skipped"}, "track": ran})
     assert resume_plan(j, ORDER) == ("associate", False)
     j = _job(from_stage="track", to_stage="associate", progress={"track": ran, "associate": ran})
