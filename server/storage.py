@@ -66,12 +66,18 @@ def _absolutize(value: str, base: Path, settings: Settings) -> str:
     return str(resolve_allowed(p if p.is_absolute() else base / p, settings))
 
 
+def _videos_in(folder: Path) -> dict[str, str]:
+    """Camera name (the file's stem) -> path of each video file directly in ``folder``."""
+    return {p.stem: str(p) for p in sorted(folder.iterdir()) if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES}
+
+
 def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | None) -> Any:
     """Write ``dest/session.json`` describing the inputs of server-side folder ``src``.
 
     ``src`` holds a ``session.json`` (its relative paths are made absolute and must stay
     under an allowed root), or inputs: one calibration file (``*.toml``, ``*.qca.txt``, ``*.qca``)
-    and videos (``<camera>.mp4|avi|mov|mkv|webm``). Returns the ``SessionConfig``.
+    and videos (``<camera>.mp4|avi|mov|mkv|webm``), each in ``src`` or, as a Pose2Sim project
+    keeps them, in ``src/calibration`` and ``src/videos``. Returns the ``SessionConfig``.
     """
     from pipeline.io.calibration import calibration_files
     from pipeline.runner.core import check_stage_configs
@@ -93,13 +99,14 @@ def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | N
         if (src / "annotations.json").exists() and not (dest / "annotations.json").exists():
             (dest / "annotations.json").write_bytes((src / "annotations.json").read_bytes())
     else:
-        files = sorted(p for p in src.iterdir() if p.is_file())
-        calibs = calibration_files(src)
-        videos = {p.stem: str(p) for p in files if p.suffix.lower() in VIDEO_SUFFIXES}
+        calib_dir = src if calibration_files(src) or not (src / "calibration").is_dir() else src / "calibration"
+        calibs = calibration_files(calib_dir)
+        videos = _videos_in(src) or (_videos_in(src / "videos") if (src / "videos").is_dir() else {})
         if len(calibs) != 1 or not videos:
             raise ValueError(
                 f"{src}: no session.json, and not an inputs folder (needs exactly one calibration *.toml/*.qca.txt/*.qca, "
-                f"found {len(calibs)}, and at least one video, found {len(videos)})"
+                f"found {len(calibs)} in {calib_dir}, and at least one video, found {len(videos)}; each in the folder "
+                "or in its calibration/ and videos/ subfolders)"
             )
         cfg = SessionConfig(name=name or src.name, source="video", calibration=str(calibs[0]), videos=videos)
     if name:

@@ -309,3 +309,25 @@ def test_a_session_whose_two_cameras_face_each_other_carries_the_layout_advice(
     assert client.get(f"/api/sessions/{three_id}", headers=admin).json()["layout_advice"] == ""
     listed = {s["id"]: s["layout_advice"] for s in client.get("/api/sessions", headers=admin).json()}
     assert listed == {two_id: advice, three_id: ""}
+
+
+def test_a_pose2sim_project_folder_is_an_inputs_folder(client: TestClient, tokens: dict, bout_folder: Path,
+                                                       settings: Settings) -> None:
+    """calibration/ and videos/ subfolders, as the Pose2Sim sample and Pose2Sim projects keep them."""
+
+    admin = auth(tokens["admin"])
+    proj = settings.allowed_roots[0] / "project"
+    (proj / "calibration").mkdir(parents=True)
+    (proj / "videos").mkdir()
+    shutil.copy(bout_folder / "inputs" / "calibration.toml", proj / "calibration" / "Calib.toml")
+    for cam in ("cam0", "cam1", "cam2"):
+        (proj / "videos" / f"{cam}.mp4").write_bytes(b"videos are decoded by the job, not at creation")
+    r = client.post("/api/sessions/from-folder", json={"path": str(proj)}, headers=admin)
+    assert r.status_code == 201, r.text
+    assert r.json()["cameras"] == ["cam0", "cam1", "cam2"]
+    cfg = json.loads((Path(r.json()["folder"]) / "session.json").read_text())
+    assert cfg["calibration"] == str(proj / "calibration" / "Calib.toml")
+    assert cfg["videos"] == {c: str(proj / "videos" / f"{c}.mp4") for c in ("cam0", "cam1", "cam2")}
+    shutil.rmtree(proj / "videos")
+    r = client.post("/api/sessions/from-folder", json={"path": str(proj)}, headers=admin)
+    assert r.status_code >= 400 and "calibration/ and videos/ subfolders" in r.text and "found 0" in r.text, r.text
