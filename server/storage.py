@@ -119,13 +119,10 @@ def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | N
     return cfg
 
 
-RIG_FIELDS = ("n_cameras", "cameras", "fps", "layout_advice")
-"""The ``Bout`` columns that come from a session's calibration (``rig_meta``)."""
-
-
 def rig_meta(session_dir: Path, cfg: Any) -> dict[str, Any] | None:
-    """``RIG_FIELDS`` of the session folder's calibration (``cfg``: its ``SessionConfig``), or None
-    when the calibration cannot be read yet (a job that reads it reports why)."""
+    """The ``Bout`` columns that come from the session folder's calibration (``cfg``: its
+    ``SessionConfig``): ``n_cameras, cameras, fps, layout_advice``; None when the calibration
+    cannot be read yet (a job that reads it reports why)."""
     from pipeline.geometry.layout import layout_advice
     from pipeline.io.session_rig import session_rig
 
@@ -151,7 +148,7 @@ def session_meta(session_dir: Path) -> dict[str, Any]:
 
 
 def rig_changes(bout: Bout) -> dict[str, Any]:
-    """The ``RIG_FIELDS`` of ``bout`` that its folder's calibration now gives otherwise (a calibration
+    """The ``rig_meta`` columns of ``bout`` that its folder's calibration now gives otherwise (a calibration
     replaced after the session was created); {} when none differ or it cannot be read."""
     from pipeline.schema.session import SessionConfig
 

@@ -36,7 +36,7 @@ def submit_job(db: Session, user: User, job_in: JobCreate, reason: str = "") -> 
         # Annotators may re-run stale stages and force later stages, never force the 2D stage
         # (``force`` without ``from_stage`` forces every stage).
         first = enabled_stage_names(bout_dir(bout))[0]
-        if job_in.from_stage in (None, first) and job_in.force or job_in.from_stage == first:
+        if (job_in.force and job_in.from_stage is None) or job_in.from_stage == first:
             raise HTTPException(status_code=status.HTTP_403_FORBIDDEN,
                                 detail=f"annotators may not force a full re-run (force or from_stage={first!r}); ask an admin")
     return crud.create_job(db, job_in=job_in, requested_by=user.name, reason=reason)
