@@ -144,7 +144,7 @@ def _check_stage_range(session: Path, from_stage: str | None, to_stage: str | No
     from pipeline.runner.core import enabled_stages, stage_range
     from pipeline.schema.session import SessionConfig
 
-    stage_range(enabled_stages(SessionConfig.load(session)), from_stage, to_stage)
+    stage_range(enabled_stages(SessionConfig.load(session), str(session / "session.json")), from_stage, to_stage)
 
 
 def _set_models_dir(session: Path, models_dir: Path) -> None:

@@ -35,22 +35,24 @@ class StageReport:
     metrics: dict[str, Any]
 
 
-def enabled_stages(session: SessionConfig) -> list[str]:
+def enabled_stages(session: SessionConfig, where: str = "session.json") -> list[str]:
+    """The session's stages in run order; ``ValueError`` (starting with ``where``, the file the
+    session came from) for an unknown stage in ``stages`` or ``stage_config``."""
     specs = get_specs()
     wanted = session.stages or tuple(specs)
     unknown = [s for s in wanted if s not in STAGE_ORDER]
     if unknown:
-        raise ValueError(f"session.json: unknown stages {unknown}; known: {list(STAGE_ORDER)}")
+        raise ValueError(f"{where}: unknown stages {unknown}; known: {list(STAGE_ORDER)}")
     unknown = [s for s in session.stage_config if s not in STAGE_ORDER]
     if unknown:
-        raise ValueError(f"session.json: stage_config has unknown stages {unknown}; known: {list(STAGE_ORDER)}")
+        raise ValueError(f"{where}: stage_config has unknown stages {unknown}; known: {list(STAGE_ORDER)}")
     return [s for s in STAGE_ORDER if s in wanted]
 
 
-def resolve_config(spec: StageSpec, session: SessionConfig) -> Any:
+def resolve_config(spec: StageSpec, session: SessionConfig, where: str = "session.json") -> Any:
     """Build the stage config from defaults + session.json overrides; every error names the
-    key and its type or range problem (``pipeline.schema.config_types.build_config``)."""
-    return build_config(spec.config_cls, session.stage_config.get(spec.name, {}), f"session.json: stage_config.{spec.name}")
+    file (``where``), the key and its type or range problem (``pipeline.schema.config_types.build_config``)."""
+    return build_config(spec.config_cls, session.stage_config.get(spec.name, {}), f"{where}: stage_config.{spec.name}")
 
 
 def check_stage_configs(session: SessionConfig) -> None:
@@ -116,9 +118,10 @@ def stage_status(session_dir: Path) -> dict[str, StageStatus]:
     """Per enabled stage: fresh, stale or missing (no side effects beyond the hash cache)."""
     session_dir = Path(session_dir)
     session = SessionConfig.load(session_dir)
+    where = str(session_dir / "session.json")
     store = ArtifactStore(session_dir)
     specs = get_specs()
-    enabled = enabled_stages(session)
+    enabled = enabled_stages(session, where)
     hashes = FileHashCache(store.root / ".hashcache.json")
     out: dict[str, StageStatus] = {}
     upstream_stale: set[str] = set()
@@ -129,7 +132,7 @@ def stage_status(session_dir: Path) -> dict[str, StageStatus]:
             out[name] = "missing"
             continue
         ctx = StageContext(session_dir, session, store, name)
-        cfg = resolve_config(spec, session)
+        cfg = resolve_config(spec, session, where)
         fp = fingerprint(ctx, spec, cfg, enabled, hashes)
         deps_bad = any(d in upstream_stale or out.get(d) in ("missing", "stale") for d in _deps_in_use(spec, enabled))
         same = fp == m.inputs and config_hash(_config_dict(cfg)) == m.config_hash and m.code_version == _code_version(spec)
@@ -183,7 +186,8 @@ def run(
     session = SessionConfig.load(session_dir)
     store = ArtifactStore(session_dir)
     specs = get_specs()
-    enabled = enabled_stages(session)
+    where = str(session_dir / "session.json")
+    enabled = enabled_stages(session, where)
     sink = progress or NullProgress()
     first_forced, last = stage_range(enabled, from_stage, to_stage)
     load_annotations(session_dir / "annotations.json")  # fail early on a malformed overlay
@@ -192,7 +196,7 @@ def run(
         check_multiview(session_rig(session_dir, session), str(calibration_path(session_dir, session)))
     # Every config up to ``to_stage`` first: a bad value in a late stage must not surface
     # only after the early stages have run.
-    cfgs = {name: resolve_config(specs[name], session) for name in enabled[: last + 1]}
+    cfgs = {name: resolve_config(specs[name], session, where) for name in enabled[: last + 1]}
     hashes = FileHashCache(store.root / ".hashcache.json")
     reports: list[StageReport] = []
     for i, name in enumerate(enabled[: last + 1]):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -83,7 +84,8 @@ def test_bad_stage_config_is_a_clear_error(tiny_session: Path) -> None:
     cfg = json.loads((tiny_session / "session.json").read_text())
     cfg["stage_config"] = {"track": {"nonsense": 1}}
     (tiny_session / "session.json").write_text(json.dumps(cfg))
-    with pytest.raises(ValueError, match="stage_config.track has unknown keys"):
+    where = re.escape(str(tiny_session / "session.json"))
+    with pytest.raises(ValueError, match=rf"^{where}: stage_config.track has unknown keys"):
         run(tiny_session)
 
 
@@ -104,9 +106,10 @@ def test_a_wrong_type_in_stage_config_names_the_key_before_any_stage_runs(tiny_s
     assert [r.stage for r in run(tiny_session, to_stage="detect2d")] == ["detect2d"]
     cfg["stage_config"] = {"trak": {"use_source_ids": True}}  # a typo must not be ignored silently
     (tiny_session / "session.json").write_text(json.dumps(cfg))
-    with pytest.raises(ValueError, match=r"stage_config has unknown stages \['trak'\]"):
+    where = re.escape(str(tiny_session / "session.json"))  # the file is named, not just "session.json"
+    with pytest.raises(ValueError, match=rf"^{where}: stage_config has unknown stages \['trak'\]"):
         run(tiny_session)
-    with pytest.raises(ValueError, match=r"stage_config has unknown stages \['trak'\]"):
+    with pytest.raises(ValueError, match=rf"^{where}: stage_config has unknown stages \['trak'\]"):
         stage_status(tiny_session)
 
 
