@@ -20,7 +20,7 @@ KEY_METRICS: dict[str, tuple[str, ...]] = {
     "associate": ("persons", "mean_confidence", "edits_applied"),
     "triangulate": ("reproj_median_px", "mean_views"),
     "fit": ("reproj_median_px", "residual_3d_mm"),
-    "physics": ("body_penetration_max_mm", "realtime_factor", "residual_force_mean_frac_bw"),
+    "physics": ("body_penetration_max_mm", "realtime_factor", "residual_force_mean_frac_bw", "reused_frames"),
     "analyze": ("punches", "clinches"),
     "evaluate": ("identity_accuracy_pct", "mpjpe_mm_filtered", "mpjpe_mm_fit", "mpjpe_mm_physics"),
 }

@@ -11,7 +11,7 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 from pipeline.cli.main import app
-from pipeline.cli.progress import LineProgress, RichProgress, progress_for
+from pipeline.cli.progress import LineProgress, RichProgress, key_metric, progress_for
 from tests.conftest import write_tiny_session
 
 
@@ -51,3 +51,11 @@ def test_cornerman_run_into_a_pipe_says_each_stage(tmp_path: Path) -> None:
         assert re.search(rf"^\d\d:\d\d:\d\d {stage}: started$", r.output, re.M), r.output
         assert re.search(rf"^\d\d:\d\d:\d\d {stage}: done in \d+\.\d s", r.output, re.M), r.output
     assert "cornerman pipeline summary" in r.output
+
+
+def test_a_physics_run_says_how_many_frames_it_reused() -> None:
+    """An incremental physics run that re-planned nothing takes a second: its real-time factor
+    (0.35 on the Pose2Sim sample) only makes sense next to the frames it reused."""
+    m = {"body_penetration_max_mm": 0.0, "realtime_factor": 0.35, "residual_force_mean_frac_bw": 0.73,
+         "reused_frames": 100, "replanned_windows": 0}  # fmt: skip
+    assert key_metric("physics", m).endswith("realtime_factor = 0.35, residual_force_mean_frac_bw = 0.73, reused_frames = 100")
