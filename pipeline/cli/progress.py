@@ -18,7 +18,7 @@ KEY_METRICS: dict[str, tuple[str, ...]] = {
     "detect2d": ("detections", "valid_keypoints_pct"),
     "track": ("tracks", "edits_applied"),
     "associate": ("persons", "mean_confidence", "edits_applied"),
-    "triangulate": ("reproj_median_px", "mean_views"),
+    "triangulate": ("reproj_median_px", "mean_views", "person_frames_min_pct"),
     "fit": ("reproj_median_px", "residual_3d_mm"),
     "physics": ("body_penetration_max_mm", "realtime_factor", "residual_force_mean_frac_bw", "reused_frames"),
     "analyze": ("punches", "clinches"),

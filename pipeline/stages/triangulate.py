@@ -180,6 +180,35 @@ def run_holding(
     return raw, run_fill(filtered, cfg.fill), bones
 
 
+FEW_FRAMES_PCT = 25.0
+"""An athlete with 3D in fewer than this share of the frames (%) is named in a warning
+(``sparse_persons``): most likely no two cameras saw them together (a camera subset, a narrow
+rig), or their identity was lost. Shelf's actor who enters half-way has 50 %."""
+
+
+def person_frames_pct(kp: Keypoints3D) -> np.ndarray:
+    """(persons,) share of the frames (%, 0-100) in which the person has any valid joint."""
+    if kp.valid.size == 0:
+        return np.zeros(kp.valid.shape[1] if kp.valid.ndim == 3 else 0)
+    return 100.0 * kp.valid.any(axis=2).mean(axis=0)
+
+
+def sparse_persons(kp: Keypoints3D, names: dict[int, str]) -> list[str]:
+    """One sentence per person (``names``: person id -> athlete name) with 3D in fewer than
+    ``FEW_FRAMES_PCT`` % of the frames of ``kp``."""
+    out = []
+    n_f = kp.valid.shape[0]
+    for pid, pct in zip(kp.person_ids.tolist(), person_frames_pct(kp).tolist(), strict=True):
+        if pct < FEW_FRAMES_PCT:
+            who = f"{names[pid]} (person {pid})" if names.get(pid) else f"person {pid}"
+            out.append(
+                f"{who} has 3D in {round(pct * n_f / 100)} of {n_f} frames: fewer than two cameras saw them "
+                "together there, so the later stages have little or nothing of them. Check that every "
+                "athlete is in at least two views (cornerman new --cameras, the camera layout)."
+            )
+    return out
+
+
 def summary(
     raw: Keypoints3D, filtered: Keypoints3D, tracks: Tracks2D, assoc: Association, rig: CameraRig
 ) -> dict[str, Any]:
@@ -196,4 +225,5 @@ def summary(
         "valid_raw_pct": round(100.0 * float(raw.valid.mean()), 1) if raw.valid.size else 0.0,
         "valid_filtered_pct": round(100.0 * float(filtered.valid.mean()), 1) if filtered.valid.size else 0.0,
         "mean_views": round(float(raw.n_views[raw.valid].mean()), 2) if e.size else 0.0,
+        "person_frames_min_pct": round(float(person_frames_pct(filtered).min()), 1) if filtered.valid.size else 0.0,
     }

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 import numpy as np
@@ -10,7 +11,9 @@ from pipeline.runner.spec import StageContext, StageSpec
 from pipeline.schema.association import Association
 from pipeline.schema.bones import BoneLengths
 from pipeline.schema.detections import Tracks2D
-from pipeline.stages.triangulate import TriangulateConfig, run_holding, summary
+from pipeline.stages.triangulate import TriangulateConfig, run_holding, sparse_persons, summary
+
+log = logging.getLogger(__name__)
 
 
 def _execute(ctx: StageContext, cfg: TriangulateConfig) -> dict[str, Any]:
@@ -31,6 +34,8 @@ def _execute(ctx: StageContext, cfg: TriangulateConfig) -> dict[str, Any]:
         )
         ctx.metrics["bones_held_pct"] = round(100.0 * float(np.mean(same)), 1)
     ctx.metrics.update(summary(raw, filtered, tracks, assoc, ctx.rig))
+    for msg in sparse_persons(filtered, dict(enumerate(ctx.session.athletes))):
+        log.warning("%s: triangulate: %s", ctx.session_dir, msg)
     return {"raw": raw, "keypoints3d": filtered, "bone_lengths": bones}
 
 
