@@ -24,7 +24,6 @@ from server.models import Bout
 log = logging.getLogger(__name__)
 
 SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
-VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm")
 CALIB_SUFFIXES = (".toml", ".txt", ".json")
 
 
@@ -66,11 +65,6 @@ def _absolutize(value: str, base: Path, settings: Settings) -> str:
     return str(resolve_allowed(p if p.is_absolute() else base / p, settings))
 
 
-def _videos_in(folder: Path) -> dict[str, str]:
-    """Camera name (the file's stem) -> path of each video file directly in ``folder``."""
-    return {p.stem: str(p) for p in sorted(folder.iterdir()) if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES}
-
-
 def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | None) -> Any:
     """Write ``dest/session.json`` describing the inputs of server-side folder ``src``.
 
@@ -80,6 +74,7 @@ def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | N
     keeps them, in ``src/calibration`` and ``src/videos``. Returns the ``SessionConfig``.
     """
     from pipeline.io.calibration import calibration_files
+    from pipeline.io.video import videos_in
     from pipeline.runner.core import check_stage_configs
     from pipeline.schema.session import SessionConfig
 
@@ -101,7 +96,7 @@ def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | N
     else:
         calib_dir = src if calibration_files(src) or not (src / "calibration").is_dir() else src / "calibration"
         calibs = calibration_files(calib_dir)
-        videos = _videos_in(src) or (_videos_in(src / "videos") if (src / "videos").is_dir() else {})
+        videos = videos_in(src) or (videos_in(src / "videos") if (src / "videos").is_dir() else {})
         if len(calibs) != 1 or not videos:
             raise ValueError(
                 f"{src}: no session.json, and not an inputs folder (needs exactly one calibration *.toml/*.qca.txt/*.qca, "

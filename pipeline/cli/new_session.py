@@ -77,22 +77,44 @@ def parse_pairs(items: list[str], option: str) -> dict[str, str]:
     return out
 
 
+def parse_videos(items: list[str]) -> tuple[dict[str, str], Path | None]:
+    """``--video`` values: ``CAM=PATH`` pairs (``parse_pairs``), or one folder whose videos are
+    named after the cameras (``cam01.mp4``, as a Pose2Sim project's ``videos/``). Returns the
+    camera -> absolute path map and the folder (``None`` for pairs)."""
+    from pipeline.io.video import VIDEO_SUFFIXES, videos_in
+
+    folders = [it for it in items if "=" not in it and Path(it).expanduser().is_dir()]
+    if not folders:
+        return parse_pairs(items, "--video"), None
+    if len(items) > 1:
+        raise ValueError(f"--video {folders[0]}: a folder of videos is the only --video value; "
+                         "give either one folder or CAM=PATH pairs")  # fmt: skip
+    folder = Path(folders[0]).expanduser().resolve()
+    found = videos_in(folder)
+    if not found:
+        raise ValueError(f"--video {folders[0]}: no video ({', '.join(VIDEO_SUFFIXES)}) in this folder")
+    return found, folder
+
+
 def parse_cameras(text: str) -> tuple[str, ...]:
     """``"cam01,cam03"`` -> ``("cam01", "cam03")`` (``""`` = every calibrated camera)."""
     return tuple(c.strip() for c in text.split(",") if c.strip())
 
 
-def _check_inputs_match(inputs: dict[str, str], calibrated: tuple[str, ...], rig: CameraRig, option: str) -> None:
-    """``ValueError`` for an input camera the calibration lacks, or a used camera without input."""
+def _check_inputs_match(inputs: dict[str, str], calibrated: tuple[str, ...], rig: CameraRig, option: str,
+                        folder: Path | None = None) -> None:
+    """``ValueError`` for an input camera the calibration lacks, or a used camera without input
+    (``folder``: the ``--video`` folder the inputs were read from, named in the message)."""
     unknown = [c for c in inputs if c not in calibrated]
     if unknown:
-        raise ValueError(
-            f"{option} for camera(s) {unknown} that the calibration does not have; its cameras are {list(calibrated)}"
-        )
+        what = f"{option} for camera(s) {unknown}" if folder is None else f"{option} {folder}: videos {unknown} are named after cameras"
+        raise ValueError(f"{what} that the calibration does not have; its cameras are {list(calibrated)}")
     missing = [c for c in rig.names if c not in inputs]
     if missing:
         given = [c for c in rig.names if c in inputs]
         hint = f", or leave them out with --cameras {','.join(given)}" if len(given) >= 2 else ""
+        if folder is not None:
+            raise ValueError(f"camera(s) {missing} of the calibration have no video in {folder} (CAM.mp4 ...){hint}")
         raise ValueError(f"camera(s) {missing} of the calibration have no {option} CAM=PATH; give one{hint}")
 
 
@@ -150,9 +172,9 @@ def plan_new_session(
     if (session_dir / "session.json").exists():
         raise ValueError(f"{session_dir / 'session.json'} exists already; choose another folder")
     calibration = resolve_calibration(calibration)  # a folder with one calibration file gives that file
-    vids, kps = parse_pairs(videos, "--video"), parse_pairs(keypoints, "--keypoints")
+    (vids, video_folder), kps = parse_videos(videos), parse_pairs(keypoints, "--keypoints")
     if bool(vids) == bool(kps):
-        raise ValueError("give either --video CAM=PATH ... or --keypoints CAM=PATH ..., not both or neither")
+        raise ValueError("give either --video CAM=PATH ... (or --video FOLDER) or --keypoints CAM=PATH ..., not both or neither")
     names = [a.strip() for a in athletes]
     if any(not a for a in names) or len(set(names)) != len(names):
         raise ValueError(f"--athlete names must be non-empty and different, got {athletes}")
@@ -179,7 +201,7 @@ def plan_new_session(
     check_multiview(rig, str(calibration))
     calibrated = load_calibration(calibration).names
     inputs, option = (vids, "--video") if vids else (kps, "--keypoints")
-    _check_inputs_match(inputs, calibrated, rig, option)
+    _check_inputs_match(inputs, calibrated, rig, option, video_folder if vids else None)
     cams = _video_inputs(inputs, rig) if vids else _keypoint_inputs(inputs, cfg.keypoint_format, rig)
     _, source = session_fps(session_dir, cfg, rig.fps)
     unused = tuple(c for c in inputs if c not in rig.names)

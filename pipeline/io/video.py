@@ -13,6 +13,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm")
+"""File endings taken as videos when a folder of videos is read (case-insensitive)."""
+
 
 @dataclass(frozen=True)
 class VideoInfo:
@@ -30,6 +33,13 @@ class VideoInfo:
     fps: float
     width_px: int
     height_px: int
+
+
+def videos_in(folder: Path) -> dict[str, str]:
+    """Camera name (the file's stem) -> path (``folder / name``) of each video directly in
+    ``folder`` (``VIDEO_SUFFIXES``), sorted by name; ``{}`` when it holds none."""
+    files = sorted(p for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES)
+    return {p.stem: str(p) for p in files}
 
 
 def _open(path: Path) -> cv2.VideoCapture:

@@ -170,3 +170,39 @@ def test_a_folder_holding_one_calibration_file_stands_for_it(tmp_path: Path) -> 
     r = runner.invoke(app, ["new", str(s), "--calibration", str(folder), *_videos(tmp_path)])
     assert r.exit_code == 0, r.output
     assert json.loads((s / "session.json").read_text())["calibration"] == str(calib.resolve())
+
+
+def test_a_folder_of_videos_named_after_the_cameras(tmp_path: Path) -> None:
+    """As a Pose2Sim project keeps them (``videos/cam01.mp4`` ...): one video per calibrated camera."""
+    calib, videos = _calibration(tmp_path), tmp_path / "videos"
+    videos.mkdir()
+    for c in ("cam1", "cam2", "cam3"):
+        _video(videos / f"{c}.avi")
+    (videos / "notes.txt").write_text("not a video")
+    s = tmp_path / "bout"
+    r = runner.invoke(app, ["new", str(s), "--calibration", str(calib), "--video", str(videos)])
+    assert r.exit_code == 0, r.output
+    d = json.loads((s / "session.json").read_text())
+    assert d["videos"] == {c: str((videos / f"{c}.avi").resolve()) for c in ("cam1", "cam2", "cam3")}
+    assert "cameras: cam1, cam2, cam3 (3)" in r.output
+
+
+@pytest.mark.parametrize("case", ["empty folder", "camera missing", "unknown camera", "folder and pairs"])
+def test_a_bad_folder_of_videos_is_a_clear_error(tmp_path: Path, case: str) -> None:
+    calib, videos = _calibration(tmp_path), tmp_path / "videos"
+    videos.mkdir()
+    cams = {"empty folder": (), "camera missing": ("cam1", "cam2"), "unknown camera": ("cam1", "cam2", "cam3", "side"),
+            "folder and pairs": ("cam1", "cam2", "cam3")}[case]  # fmt: skip
+    for c in cams:
+        _video(videos / f"{c}.avi")
+    extra = ["--video", f"cam1={videos / 'cam1.avi'}"] if case == "folder and pairs" else []
+    s = tmp_path / "bout"
+    r = runner.invoke(app, ["new", str(s), "--calibration", str(calib), "--video", str(videos), *extra])
+    assert r.exit_code == 2, r.output
+    expected = {"empty folder": ["no video (.mp4", str(videos)],
+                "camera missing": ["['cam3']", f"no video in {videos.resolve()}", "--cameras cam1,cam2"],
+                "unknown camera": ["['side']", "does not have", "'cam1', 'cam2', 'cam3'"],
+                "folder and pairs": ["only --video value"]}[case]  # fmt: skip
+    for f in expected:
+        assert f in r.output, (f, r.output)
+    assert "Traceback" not in r.output and not s.exists()
