@@ -403,7 +403,7 @@ def new(
     session: Annotated[Path, typer.Argument(help="Session folder to create.")],
     calibration: Annotated[Path, typer.Option(help="Calibration file (.toml, .qca.txt, .json), EasyMocap folder, or a folder holding one .toml or .qca.txt.")],
     video: Annotated[list[str], typer.Option(help="CAM=PATH, repeated, one per camera; or one folder of videos named after the cameras (cam01.mp4 ...).")] = [],  # noqa: B006
-    keypoints: Annotated[list[str], typer.Option(help="CAM=PATH of 2D keypoints, repeated.")] = [],  # noqa: B006
+    keypoints: Annotated[list[str], typer.Option(help="CAM=PATH of 2D keypoints, repeated; or one folder of per-camera inputs named after the cameras.")] = [],  # noqa: B006
     keypoint_format: Annotated[str, typer.Option(help="openpose or coco.")] = "openpose",
     name: Annotated[str, typer.Option(help="Bout name.")] = "",
     fps: Annotated[float, typer.Option(help="Frame rate (0 = from calibration/video).")] = 0.0,

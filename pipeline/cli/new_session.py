@@ -77,23 +77,25 @@ def parse_pairs(items: list[str], option: str) -> dict[str, str]:
     return out
 
 
-def parse_videos(items: list[str]) -> tuple[dict[str, str], Path | None]:
-    """``--video`` values: ``CAM=PATH`` pairs (``parse_pairs``), or one folder whose videos are
-    named after the cameras (``cam01.mp4``, as a Pose2Sim project's ``videos/``). Returns the
-    camera -> absolute path map and the folder (``None`` for pairs)."""
-    from pipeline.io.video import VIDEO_SUFFIXES, videos_in
+def parse_inputs(
+    items: list[str], option: str, calibration: Path, keypoint_format: str = ""
+) -> tuple[dict[str, str], Path | None]:
+    """``--video`` / ``--keypoints`` values: ``CAM=PATH`` pairs (``parse_pairs``), or one folder
+    holding every camera's input named after one of ``calibration``'s cameras
+    (``pipeline.cli.input_folders``). Returns the camera -> absolute path map and the folder
+    (``None`` for pairs)."""
+    from pipeline.cli.input_folders import folder_entries, match_cameras
+    from pipeline.io.calibration import load_calibration
 
     folders = [it for it in items if "=" not in it and Path(it).expanduser().is_dir()]
     if not folders:
-        return parse_pairs(items, "--video"), None
+        return parse_pairs(items, option), None
     if len(items) > 1:
-        raise ValueError(f"--video {folders[0]}: a folder of videos is the only --video value; "
+        raise ValueError(f"{option} {folders[0]}: a folder of inputs is the only {option} value; "
                          "give either one folder or CAM=PATH pairs")  # fmt: skip
     folder = Path(folders[0]).expanduser().resolve()
-    found = videos_in(folder)
-    if not found:
-        raise ValueError(f"--video {folders[0]}: no video ({', '.join(VIDEO_SUFFIXES)}) in this folder")
-    return found, folder
+    calibrated = load_calibration(calibration).names
+    return match_cameras(folder_entries(folder, option, keypoint_format), calibrated, folder, option), folder
 
 
 def parse_cameras(text: str) -> tuple[str, ...]:
@@ -101,21 +103,22 @@ def parse_cameras(text: str) -> tuple[str, ...]:
     return tuple(c.strip() for c in text.split(",") if c.strip())
 
 
-def _check_inputs_match(inputs: dict[str, str], calibrated: tuple[str, ...], rig: CameraRig, option: str,
-                        folder: Path | None = None) -> None:
+def _check_inputs_match(
+    inputs: dict[str, str], calibrated: tuple[str, ...], rig: CameraRig, option: str, folder: Path | None
+) -> None:
     """``ValueError`` for an input camera the calibration lacks, or a used camera without input
-    (``folder``: the ``--video`` folder the inputs were read from, named in the message)."""
+    (``folder``: the folder the inputs were read from, else ``None``)."""
     unknown = [c for c in inputs if c not in calibrated]
     if unknown:
-        what = f"{option} for camera(s) {unknown}" if folder is None else f"{option} {folder}: videos {unknown} are named after cameras"
-        raise ValueError(f"{what} that the calibration does not have; its cameras are {list(calibrated)}")
+        raise ValueError(
+            f"{option} for camera(s) {unknown} that the calibration does not have; its cameras are {list(calibrated)}"
+        )
     missing = [c for c in rig.names if c not in inputs]
     if missing:
         given = [c for c in rig.names if c in inputs]
         hint = f", or leave them out with --cameras {','.join(given)}" if len(given) >= 2 else ""
-        if folder is not None:
-            raise ValueError(f"camera(s) {missing} of the calibration have no video in {folder} (CAM.mp4 ...){hint}")
-        raise ValueError(f"camera(s) {missing} of the calibration have no {option} CAM=PATH; give one{hint}")
+        where = f"input in {option} {folder}" if folder is not None else f"{option} CAM=PATH; give one"
+        raise ValueError(f"camera(s) {missing} of the calibration have no {where}{hint}")
 
 
 def _video_inputs(inputs: dict[str, str], rig: CameraRig) -> list[CameraInput]:
@@ -172,9 +175,11 @@ def plan_new_session(
     if (session_dir / "session.json").exists():
         raise ValueError(f"{session_dir / 'session.json'} exists already; choose another folder")
     calibration = resolve_calibration(calibration)  # a folder with one calibration file gives that file
-    (vids, video_folder), kps = parse_videos(videos), parse_pairs(keypoints, "--keypoints")
-    if bool(vids) == bool(kps):
-        raise ValueError("give either --video CAM=PATH ... (or --video FOLDER) or --keypoints CAM=PATH ..., not both or neither")
+    if bool(videos) == bool(keypoints):
+        raise ValueError("give either --video or --keypoints (CAM=PATH ..., or one FOLDER), not both or neither")
+    option, items = ("--video", videos) if videos else ("--keypoints", keypoints)
+    inputs, folder = parse_inputs(items, option, calibration, keypoint_format)
+    vids, kps = (inputs, {}) if videos else ({}, inputs)
     names = [a.strip() for a in athletes]
     if any(not a for a in names) or len(set(names)) != len(names):
         raise ValueError(f"--athlete names must be non-empty and different, got {athletes}")
@@ -200,8 +205,7 @@ def plan_new_session(
     rig = session_rig(session_dir, cfg)  # parses the calibration, applies --cameras
     check_multiview(rig, str(calibration))
     calibrated = load_calibration(calibration).names
-    inputs, option = (vids, "--video") if vids else (kps, "--keypoints")
-    _check_inputs_match(inputs, calibrated, rig, option, video_folder if vids else None)
+    _check_inputs_match(inputs, calibrated, rig, option, folder)
     cams = _video_inputs(inputs, rig) if vids else _keypoint_inputs(inputs, cfg.keypoint_format, rig)
     _, source = session_fps(session_dir, cfg, rig.fps)
     unused = tuple(c for c in inputs if c not in rig.names)
@@ -229,7 +233,8 @@ def print_summary(console: Console, plan: NewSession) -> None:
         console.print(f"  [yellow]{escape(advice)}[/]", soft_wrap=True)
     if plan.unused:
         console.print(f"not used (--cameras): {', '.join(plan.unused)}", soft_wrap=True)
-    console.print(f"frames: {span}; fps: {rig.fps:.4g} (from the {plan.fps_source})", soft_wrap=True)
+    source = "--fps" if plan.fps_source == "session.json fps" else f"the {plan.fps_source}"
+    console.print(f"frames: {span}; fps: {rig.fps:.4g} (from {source})", soft_wrap=True)
     if plan.fps_source == "calibration default":
         console.print("  [yellow]the frame rate is a default: give the real one with --fps[/]", soft_wrap=True)
     console.print(f"athletes: {', '.join(cfg.athletes)} ({len(cfg.athletes)} persons)", soft_wrap=True)

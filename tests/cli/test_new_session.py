@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -187,22 +188,48 @@ def test_a_folder_of_videos_named_after_the_cameras(tmp_path: Path) -> None:
     assert "cameras: cam1, cam2, cam3 (3)" in r.output
 
 
-@pytest.mark.parametrize("case", ["empty folder", "camera missing", "unknown camera", "folder and pairs"])
-def test_a_bad_folder_of_videos_is_a_clear_error(tmp_path: Path, case: str) -> None:
+def test_a_folder_of_keypoints_matches_cameras_by_loose_name(tmp_path: Path) -> None:
+    """As Shelf ships them: ``keypoints2d/cam0`` ... for calibrated cameras ``cam_0`` ...; here COCO
+    files ``CAM_01.json`` and ``cam-2.json`` stand for calibrated ``cam1`` and ``cam2``."""
+    calib, folder = _calibration(tmp_path, 2), tmp_path / "coco"
+    folder.mkdir()
+    _coco(folder / "CAM_01.json")
+    _coco(folder / "cam-2.json")
+    s = tmp_path / "bout"
+    r = runner.invoke(app, ["new", str(s), "--calibration", str(calib), "--keypoints", str(folder),
+                            "--keypoint-format", "coco", "--fps", "25"])  # fmt: skip
+    assert r.exit_code == 0, r.output
+    assert "fps: 25 (from --fps)" in r.output
+    d = json.loads((s / "session.json").read_text())
+    assert d["keypoints"] == {"cam1": str(folder / "CAM_01.json"), "cam2": str(folder / "cam-2.json")}
+
+
+@pytest.mark.parametrize(
+    "case", ["empty folder", "camera missing", "unknown camera", "folder and pairs", "ambiguous", "twice"]
+)
+def test_a_bad_input_folder_is_a_clear_error(tmp_path: Path, case: str) -> None:
     calib, videos = _calibration(tmp_path), tmp_path / "videos"
     videos.mkdir()
     cams = {"empty folder": (), "camera missing": ("cam1", "cam2"), "unknown camera": ("cam1", "cam2", "cam3", "side"),
-            "folder and pairs": ("cam1", "cam2", "cam3")}[case]  # fmt: skip
+            "folder and pairs": ("cam1", "cam2", "cam3"), "ambiguous": ("cam1", "cam2", "cam3"),
+            "twice": ("cam1", "cam2", "cam3", "cam_03")}[case]  # fmt: skip
     for c in cams:
         _video(videos / f"{c}.avi")
+    if case == "ambiguous":  # a calibration with cameras cam1 and cam_1: "CAM1" could be either
+        rig = make_rig(2, fps=50.0)
+        save_toml(replace(rig, names=("cam1", "cam_1")), calib)
+        (videos / "cam1.avi").rename(videos / "CAM1.avi")
     extra = ["--video", f"cam1={videos / 'cam1.avi'}"] if case == "folder and pairs" else []
     s = tmp_path / "bout"
     r = runner.invoke(app, ["new", str(s), "--calibration", str(calib), "--video", str(videos), *extra])
     assert r.exit_code == 2, r.output
-    expected = {"empty folder": ["no video (.mp4", str(videos)],
-                "camera missing": ["['cam3']", f"no video in {videos.resolve()}", "--cameras cam1,cam2"],
-                "unknown camera": ["['side']", "does not have", "'cam1', 'cam2', 'cam3'"],
-                "folder and pairs": ["only --video value"]}[case]  # fmt: skip
+    where = str(videos.resolve())
+    expected = {"empty folder": ["no video (.mp4", where],
+                "camera missing": ["['cam3']", f"no input in --video {where}", "--cameras cam1,cam2"],
+                "unknown camera": ["['side']", "named after no camera", "'cam1', 'cam2', 'cam3'"],
+                "folder and pairs": ["only --video value"],
+                "ambiguous": ["'CAM1' could stand for cameras ['cam1', 'cam_1']"],
+                "twice": ["two inputs for camera 'cam3'", "cam_03"]}[case]  # fmt: skip
     for f in expected:
-        assert f in r.output, (f, r.output)
+        assert f in " ".join(r.output.split()), (f, r.output)
     assert "Traceback" not in r.output and not s.exists()
