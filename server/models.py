@@ -120,6 +120,8 @@ class FolderSessionCreate(SQLModel):
     name: str | None = Field(default=None, max_length=200)
     date: str = ""
     auto_rerun: bool = True
+    fps: float | None = Field(default=None, gt=0, description="Frame rate in Hz; default: the session.json's, "
+                              "else the calibration's, else the videos'.")  # fmt: skip
 
 
 # ---------------------------------------------------------------- identities
@@ -264,6 +266,8 @@ class AnnotationResult(SQLModel):
 class BatchItem(SQLModel):
     path: str = Field(min_length=1)
     name: str | None = None
+    fps: float | None = Field(default=None, gt=0, description="Frame rate in Hz; default: the session.json's, "
+                              "else the calibration's, else the videos'.")  # fmt: skip
 
 
 class BatchCreate(SQLModel):

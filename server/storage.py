@@ -65,16 +65,42 @@ def _absolutize(value: str, base: Path, settings: Settings) -> str:
     return str(resolve_allowed(p if p.is_absolute() else base / p, settings))
 
 
-def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | None) -> Any:
+def _inputs_config(src: Path, name: str | None) -> Any:
+    """The ``SessionConfig`` of inputs folder ``src`` (see ``session_from_folder``); ``ValueError``
+    saying what is missing or which entry matches no calibrated camera."""
+    from pipeline.io.calibration import calibration_files, load_calibration
+    from pipeline.io.input_folders import KEYPOINT_SUBFOLDERS, EntryKind, entries, match_cameras
+    from pipeline.schema.session import SessionConfig
+
+    calib_dir = src if calibration_files(src) or not (src / "calibration").is_dir() else src / "calibration"
+    calibs = calibration_files(calib_dir)
+    if len(calibs) != 1:
+        raise ValueError(f"{src}: no session.json, and not an inputs folder: needs exactly one calibration "
+                         f"*.toml/*.qca.txt/*.qca in it or in its calibration/ subfolder, found {len(calibs)} in {calib_dir}")  # fmt: skip
+    candidates: list[tuple[Path, EntryKind]] = [(src, "video"), (src / "videos", "video")]
+    candidates += [(src / k, "openpose") for k in KEYPOINT_SUBFOLDERS]
+    for folder, kind in candidates:
+        found = entries(folder, kind) if folder.is_dir() else {}
+        if found:
+            inputs = match_cameras(found, load_calibration(calibs[0]).names, str(folder))
+            videos, keypoints = (inputs, {}) if kind == "video" else ({}, inputs)
+            return SessionConfig(name=name or src.name, source="video" if videos else "keypoints",
+                                 calibration=str(calibs[0]), videos=videos, keypoints=keypoints)  # fmt: skip
+    raise ValueError(f"{src}: no session.json, and no inputs: no video in it or in its videos/ subfolder, and no "
+                     f"OpenPose camera folders in {', '.join(k + '/' for k in KEYPOINT_SUBFOLDERS)}")  # fmt: skip
+
+
+def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | None, fps: float | None = None) -> Any:
     """Write ``dest/session.json`` describing the inputs of server-side folder ``src``.
 
     ``src`` holds a ``session.json`` (its relative paths are made absolute and must stay
     under an allowed root), or inputs: one calibration file (``*.toml``, ``*.qca.txt``, ``*.qca``)
-    and videos (``<camera>.mp4|avi|mov|mkv|webm``), each in ``src`` or, as a Pose2Sim project
-    keeps them, in ``src/calibration`` and ``src/videos``. Returns the ``SessionConfig``.
+    in ``src`` or ``src/calibration``, and either videos (``<camera>.mp4|avi|mov|mkv|webm``) in
+    ``src`` or ``src/videos``, or one OpenPose folder per camera in ``src/keypoints2d``,
+    ``src/keypoints`` or ``src/pose`` (named after the cameras: ``pipeline.io.input_folders``).
+    ``name`` and ``fps`` (Hz, > 0), when given, override the bout name and frame rate.
+    Returns the ``SessionConfig``.
     """
-    from pipeline.io.calibration import calibration_files
-    from pipeline.io.video import videos_in
     from pipeline.runner.core import check_stage_configs
     from pipeline.schema.session import SessionConfig
 
@@ -94,18 +120,11 @@ def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | N
         if (src / "annotations.json").exists() and not (dest / "annotations.json").exists():
             (dest / "annotations.json").write_bytes((src / "annotations.json").read_bytes())
     else:
-        calib_dir = src if calibration_files(src) or not (src / "calibration").is_dir() else src / "calibration"
-        calibs = calibration_files(calib_dir)
-        videos = videos_in(src) or (videos_in(src / "videos") if (src / "videos").is_dir() else {})
-        if len(calibs) != 1 or not videos:
-            raise ValueError(
-                f"{src}: no session.json, and not an inputs folder (needs exactly one calibration *.toml/*.qca.txt/*.qca, "
-                f"found {len(calibs)} in {calib_dir}, and at least one video, found {len(videos)}; each in the folder "
-                "or in its calibration/ and videos/ subfolders)"
-            )
-        cfg = SessionConfig(name=name or src.name, source="video", calibration=str(calibs[0]), videos=videos)
+        cfg = _inputs_config(src, name)
     if name:
         cfg = replace(cfg, name=name)
+    if fps is not None:
+        cfg = replace(cfg, fps=float(fps))
     try:  # a bad stage_config value is refused here, not when a queued job reaches its stage
         check_stage_configs(cfg)
     except ValueError as e:

@@ -82,10 +82,10 @@ def parse_inputs(
 ) -> tuple[dict[str, str], Path | None]:
     """``--video`` / ``--keypoints`` values: ``CAM=PATH`` pairs (``parse_pairs``), or one folder
     holding every camera's input named after one of ``calibration``'s cameras
-    (``pipeline.cli.input_folders``). Returns the camera -> absolute path map and the folder
+    (``pipeline.io.input_folders``). Returns the camera -> absolute path map and the folder
     (``None`` for pairs)."""
-    from pipeline.cli.input_folders import folder_entries, match_cameras
     from pipeline.io.calibration import load_calibration
+    from pipeline.io.input_folders import EntryKind, describe, entries, match_cameras
 
     folders = [it for it in items if "=" not in it and Path(it).expanduser().is_dir()]
     if not folders:
@@ -94,8 +94,11 @@ def parse_inputs(
         raise ValueError(f"{option} {folders[0]}: a folder of inputs is the only {option} value; "
                          "give either one folder or CAM=PATH pairs")  # fmt: skip
     folder = Path(folders[0]).expanduser().resolve()
-    calibrated = load_calibration(calibration).names
-    return match_cameras(folder_entries(folder, option, keypoint_format), calibrated, folder, option), folder
+    kind: EntryKind = "video" if option == "--video" else "coco" if keypoint_format == "coco" else "openpose"
+    found = entries(folder, kind)
+    if not found:
+        raise ValueError(f"{option} {folders[0]}: no {describe(kind)} in this folder")
+    return match_cameras(found, load_calibration(calibration).names, f"{option} {folder}"), folder
 
 
 def parse_cameras(text: str) -> tuple[str, ...]:

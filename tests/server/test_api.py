@@ -330,4 +330,35 @@ def test_a_pose2sim_project_folder_is_an_inputs_folder(client: TestClient, token
     assert cfg["videos"] == {c: str(proj / "videos" / f"{c}.mp4") for c in ("cam0", "cam1", "cam2")}
     shutil.rmtree(proj / "videos")
     r = client.post("/api/sessions/from-folder", json={"path": str(proj)}, headers=admin)
-    assert r.status_code >= 400 and "calibration/ and videos/ subfolders" in r.text and "found 0" in r.text, r.text
+    assert r.status_code == 422 and "no video in it or in its videos/ subfolder" in r.text, r.text
+    shutil.rmtree(proj / "calibration")
+    r = client.post("/api/sessions/from-folder", json={"path": str(proj)}, headers=admin)
+    assert r.status_code == 422 and "calibration/ subfolder, found 0" in r.text, r.text
+
+
+def test_a_folder_of_openpose_cameras_is_an_inputs_folder(client: TestClient, tokens: dict, bout_folder: Path,
+                                                          settings: Settings) -> None:
+    """As Shelf keeps its detections (``keypoints2d/cam0`` ...) or Pose2Sim (``pose/cam01_json``):
+    one OpenPose folder per camera, matched to the calibration's cameras by loose name; the
+    request's ``fps`` sets the frame rate (the calibration has none)."""
+    admin = auth(tokens["admin"])
+    proj = settings.allowed_roots[0] / "shelf_like"
+    proj.mkdir()
+    shutil.copy(bout_folder / "inputs" / "calibration.toml", proj / "calibration.toml")
+    for name in ("CAM_0", "cam1_json", "cam2"):
+        (proj / "pose" / name).mkdir(parents=True)  # the job parses the JSON files, not the creation
+    r = client.post("/api/batch", json={"sessions": [{"path": str(proj), "fps": 25}], "to_stage": "track"},
+                    headers=admin)  # fmt: skip
+    assert r.status_code == 201, r.text
+    sid = r.json()["sessions"][0]
+    assert client.get(f"/api/sessions/{sid}", headers=admin).json()["fps"] == 25
+    folder = Path(client.get(f"/api/sessions/{sid}", headers=admin).json()["folder"])
+    cfg = json.loads((folder / "session.json").read_text())
+    assert cfg["source"] == "keypoints" and cfg["fps"] == 25
+    assert cfg["keypoints"] == {"cam0": str(proj / "pose" / "CAM_0"), "cam1": str(proj / "pose" / "cam1_json"),
+                                "cam2": str(proj / "pose" / "cam2")}  # fmt: skip
+    (proj / "pose" / "side").mkdir()
+    r = client.post("/api/sessions/from-folder", json={"path": str(proj)}, headers=admin)
+    assert r.status_code == 422 and "['side'] named after no camera" in r.text, r.text
+    r = client.post("/api/sessions/from-folder", json={"path": str(proj), "fps": 0}, headers=admin)
+    assert r.status_code == 422, r.text

@@ -28,7 +28,7 @@ def batch(db: SessionDep, settings: SettingsDep, user: AdminUser, body: BatchCre
         for item, src in zip(body.sessions, srcs, strict=True):
             dest = new_session_dir(settings)
             made.append(dest)
-            session_from_folder(src, dest, settings, item.name)
+            session_from_folder(src, dest, settings, item.name, item.fps)
             validate_stage_range(dest, body.from_stage, body.to_stage)
             bouts.append(bout_from_meta(dest, user.name))
     except BaseException:

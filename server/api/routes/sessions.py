@@ -41,11 +41,12 @@ router = APIRouter(prefix="/sessions", tags=["sessions"])
 
 
 def register_folder(db: SessionDep, settings: Settings, src: Path, name: str | None, date: str, auto_rerun: bool,
-                    author: str) -> Bout:
-    """Create a session from server-side folder ``src`` (already checked against the allowed roots)."""
+                    author: str, fps: float | None = None) -> Bout:
+    """Create a session from server-side folder ``src`` (already checked against the allowed roots;
+    ``fps`` in Hz overrides the frame rate)."""
     dest = new_session_dir(settings)
     try:
-        session_from_folder(src, dest, settings, name)
+        session_from_folder(src, dest, settings, name, fps)
         bout = bout_from_meta(dest, author, date=date, auto_rerun=auto_rerun)
     except BaseException:
         shutil.rmtree(dest, ignore_errors=True)
@@ -167,7 +168,7 @@ def upload_session(
 def session_from_server_folder(db: SessionDep, settings: SettingsDep, user: AdminUser, body: FolderSessionCreate) -> Any:
     """Create a session from a server-side folder under an allowed root (admin)."""
     src = resolve_allowed(body.path, settings)
-    return register_folder(db, settings, src, body.name, body.date, body.auto_rerun, user.name)
+    return register_folder(db, settings, src, body.name, body.date, body.auto_rerun, user.name, body.fps)
 
 
 @router.get("/{session_id}", response_model=BoutPublic)
