@@ -35,8 +35,9 @@ def test_folder_session_run_job_page_and_delete(client: TestClient, tokens: dict
     assert f'<option value="{folder}">' in page  # the folder is offered under the allowed root
     assert "<script src" not in page and "<link" not in page  # nothing fetched from elsewhere
 
-    r = client.post("/sessions/new/folder", data={"path": str(folder), "name": "picked", "date": "2026-11-01"},
-                    follow_redirects=False)
+    assert 'name="fps"' in page
+    r = client.post("/sessions/new/folder", data={"path": str(folder), "name": "picked", "date": "2026-11-01",
+                                                  "fps": "25"}, follow_redirects=False)  # fmt: skip
     assert r.status_code == 303 and r.headers["location"].startswith("/?msg=created%20session")
     assert "deg%20apart" not in r.headers["location"]  # three cameras a third of a turn apart: no layout advice
     (sid,) = _session_ids(client, tokens)
@@ -44,6 +45,7 @@ def test_folder_session_run_job_page_and_delete(client: TestClient, tokens: dict
     row = re.search(rf"<tr id='s{sid}'>.*?</tr>", page, re.S)
     assert row is not None
     created = client.get(f"/api/sessions/{sid}", headers=auth(tokens["admin"])).json()["created_at"]
+    assert client.get(f"/api/sessions/{sid}", headers=auth(tokens["admin"])).json()["fps"] == 25
     assert created[:10] in row.group(0) and created[11:16] in row.group(0) and "2026-11-01" in row.group(0)
     assert "⚠ layout" not in row.group(0)
     assert f'action="/sessions/{sid}/run"' in row.group(0) and f'href="/sessions/{sid}/delete"' in row.group(0)
@@ -106,6 +108,11 @@ def test_upload_form_creates_a_keypoint_session(client: TestClient, tokens: dict
     r = client.post("/sessions/new/folder", data={"path": "/etc"})
     assert r.status_code == 403 and "outside the allowed roots" in r.text
     assert _session_ids(client, tokens) == [sid]
+    # the empty frame-rate field a browser sends keeps the folder's own rate
+    r = client.post("/sessions/new/folder", data={"path": str(src), "fps": ""}, follow_redirects=False)
+    assert r.status_code == 303, r.text
+    new = [i for i in _session_ids(client, tokens) if i != sid]
+    assert len(new) == 1 and client.get(f"/api/sessions/{new[0]}", headers=auth(tokens["admin"])).json()["fps"] == 50
 
 
 def test_roles_and_cross_site_posts(client: TestClient, tokens: dict, settings: Settings) -> None:

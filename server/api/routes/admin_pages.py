@@ -121,14 +121,16 @@ def create_from_folder(
     path: Annotated[str, Form(min_length=1, max_length=4000)],
     name: Annotated[str, Form(max_length=200)] = "",
     date: Annotated[str, Form(max_length=32)] = "",
+    fps: Annotated[float, Form(ge=0)] = 0.0,
 ) -> Any:
-    """A session from a server folder under ``CORNERMAN_ALLOWED_ROOTS`` (admin); then its page row."""
+    """A session from a server folder under ``CORNERMAN_ALLOWED_ROOTS`` (admin); then its page row.
+    ``fps`` (Hz) sets the frame rate; 0 keeps the folder's own."""
 
     def act() -> Any:
         u = page_user(request, user)
         _need(u, "admin")
         bout = register_folder(db, settings, resolve_allowed(path.strip(), settings), name.strip() or None, date,
-                               True, u.name)
+                               True, u.name, fps or None)
         return _back(_with_layout(f"created session {bout.id} ({bout.name}) from {path.strip()}", bout))
 
     return _run_action(act)
