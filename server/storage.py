@@ -108,19 +108,19 @@ def session_from_folder(src: Path, dest: Path, settings: Settings, name: str | N
         raise ValueError(f"{src}: not a folder")
     if (src / "session.json").exists():
         cfg = SessionConfig.load(src)
-        cfg = replace(
-            cfg,
-            calibration=_absolutize(cfg.calibration, src, settings),
-            videos={k: _absolutize(v, src, settings) for k, v in cfg.videos.items()},
-            keypoints={k: _absolutize(v, src, settings) for k, v in cfg.keypoints.items()},
-            tracks=_absolutize(cfg.tracks, src, settings),
-            ground_truth=_absolutize(cfg.ground_truth, src, settings),
-            ground_truth_labels=_absolutize(cfg.ground_truth_labels, src, settings),
-        )
         if (src / "annotations.json").exists() and not (dest / "annotations.json").exists():
             (dest / "annotations.json").write_bytes((src / "annotations.json").read_bytes())
     else:
         cfg = _inputs_config(src, name)
+    cfg = replace(  # every input path absolute, and (symbolic links followed) under an allowed root
+        cfg,
+        calibration=_absolutize(cfg.calibration, src, settings),
+        videos={k: _absolutize(v, src, settings) for k, v in cfg.videos.items()},
+        keypoints={k: _absolutize(v, src, settings) for k, v in cfg.keypoints.items()},
+        tracks=_absolutize(cfg.tracks, src, settings),
+        ground_truth=_absolutize(cfg.ground_truth, src, settings),
+        ground_truth_labels=_absolutize(cfg.ground_truth_labels, src, settings),
+    )
     if name:
         cfg = replace(cfg, name=name)
     if fps is not None:

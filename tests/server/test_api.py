@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -362,3 +363,13 @@ def test_a_folder_of_openpose_cameras_is_an_inputs_folder(client: TestClient, to
     assert r.status_code == 422 and "['side'] named after no camera" in r.text, r.text
     r = client.post("/api/sessions/from-folder", json={"path": str(proj), "fps": 0}, headers=admin)
     assert r.status_code == 422, r.text
+    # an entry that links outside the allowed roots is refused like a session.json path would be
+    (proj / "pose" / "side").rmdir()
+    outside = Path(tempfile.mkdtemp())
+    try:
+        (proj / "pose" / "cam2").rmdir()
+        (proj / "pose" / "cam2").symlink_to(outside, target_is_directory=True)
+        r = client.post("/api/sessions/from-folder", json={"path": str(proj), "fps": 25}, headers=admin)
+        assert r.status_code == 403 and "outside the allowed roots" in r.text, r.text
+    finally:
+        shutil.rmtree(outside)
