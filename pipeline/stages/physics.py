@@ -509,7 +509,7 @@ def _run(
         checkpoints = checkpoints_of(kp, pids, in_digest, ref_digest, body, skels, sole, bout, foot_offsets_mm, ref_vals, ik)
     compute_s = time.perf_counter() - t_start
     motion_s = max(F - 1, 1) / kp.fps
-    body_pen = mp.deepest_inter_person_mm(contacts, F)
+    body_pen = mp.deepest_inter_person_mm(contacts, F, observed, np.asarray(pids))  # absent persons left out
     weight_n = np.array([p.mass_kg * 9.81 for p in lay.persons])
     resid_bw = np.linalg.norm(resid[..., :3], axis=-1) / weight_n[None]
     n_bad, bad_frames = int(agg["untrackable_windows"]), int(untrackable.any(axis=1).sum())

@@ -460,10 +460,22 @@ class FrameContacts:
     body_names: tuple[str, ...]
 
 
-def deepest_inter_person_mm(contacts: FrameContacts, n_frames: int) -> np.ndarray:
+def deepest_inter_person_mm(
+    contacts: FrameContacts, n_frames: int, observed: np.ndarray | None = None, person_ids: np.ndarray | None = None
+) -> np.ndarray:
     """(n_frames,) deepest overlap in mm between bodies of different persons in each
-    frame (0 where they do not overlap; ground contacts are ignored)."""
+    frame (0 where they do not overlap; ground contacts are ignored). With ``observed``
+    (frames, persons) bool, columns in ``person_ids`` order, only contacts between two persons
+    observed in that frame count (an absent person is still simulated, not output)."""
     inter = (contacts.person[:, 0] >= 0) & (contacts.person[:, 1] >= 0)
+    if observed is not None and person_ids is not None:
+        col = {int(p): i for i, p in enumerate(np.asarray(person_ids).tolist())}
+        a = np.array([col.get(int(p), -1) for p in contacts.person[:, 0]], dtype=np.int64)
+        b = np.array([col.get(int(p), -1) for p in contacts.person[:, 1]], dtype=np.int64)
+        seen = np.zeros(len(a), dtype=bool)
+        ok = inter & (a >= 0) & (b >= 0)
+        seen[ok] = observed[contacts.frame[ok], a[ok]] & observed[contacts.frame[ok], b[ok]]
+        inter = inter & seen
     out = np.zeros(n_frames)
     np.maximum.at(out, contacts.frame[inter], 1000.0 * contacts.depth_m[inter])
     return out
