@@ -100,8 +100,8 @@ def _new_session_forms(folders: list[str], roots: list[str]) -> str:
  placeholder="/path/with/session.json"><datalist id="folders">{options}</datalist><br>
 <label for="folder-name">Name (optional)</label><input type="text" id="folder-name" name="name"><br>
 <label for="folder-date">Bout date</label><input type="text" id="folder-date" name="date" placeholder="YYYY-MM-DD"><br>
-<label for="folder-fps">Frame rate (optional)</label><input type="number" id="folder-fps" name="fps" min="0" step="any"
- placeholder="Hz: when the calibration and videos have none"><br>
+<label for="folder-fps">fps (optional)</label><input type="text" id="folder-fps" name="fps" inputmode="decimal"
+ placeholder="default: the session.json's, else the calibration's, else the videos'"><br>
 <span class="small">A folder with a session.json, or one calibration and videos or OpenPose keypoints (as Pose2Sim
  projects and Shelf keep them: see the API docs).</span><br>
 <span class="small">Allowed roots (CORNERMAN_ALLOWED_ROOTS): {escape(", ".join(roots))}</span><br>
