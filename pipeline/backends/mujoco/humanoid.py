@@ -41,6 +41,7 @@ from xml.sax.saxutils import quoteattr
 import mujoco
 import numpy as np
 
+from pipeline.backends.mujoco.absent import PERSON_AFFINITY
 from pipeline.backends.mujoco.config import DENSITY_KG_M3, HumanoidConfig, ResidualConfig
 from pipeline.backends.mujoco.skeleton import Skeleton
 from pipeline.evaluate.effort import HUMAN_PEAK_TORQUE_NM_PER_KG, group_of_joint, joint_of_actuator
@@ -159,11 +160,12 @@ def _person_xml(
     """Body tree XML and actuator lines of one person; mesh assets are appended to ``assets``."""
     pre = f"p{pid}_"
     if cfg.self_collision == "none":
-        # Bit 0 is the floor; person k owns bit k+1 and collides with everyone else's.
-        own = 1 << (pid % 30 + 1)
-        ct, ca = own, 0x7FFFFFFF & ~own
+        # Bit 0 is the floor; person k owns bit k+1 and collides with everyone else's
+        # (bit 30 is an absent person's: ``absent.ABSENT_BIT``, which only the floor collides with).
+        own = 1 << (pid % 29 + 1)
+        ct, ca = own, PERSON_AFFINITY & ~own
     else:
-        ct, ca = 1, 0x7FFFFFFF
+        ct, ca = 1, PERSON_AFFINITY
     children: dict[str, list[str]] = {}
     for b in skel.bodies:
         children.setdefault(b.parent, []).append(b.name)

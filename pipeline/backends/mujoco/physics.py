@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
+from pipeline.backends.mujoco.absent import AbsentContacts, absent_persons
 from pipeline.backends.mujoco.config import ILQRConfig, ResidualConfig, SolverConfig
 from pipeline.backends.mujoco.fd_split import PersonBlocks
 from pipeline.backends.mujoco.ilqr import ILQRResult, UnstableRollout, optimise
@@ -302,9 +303,12 @@ def optimise_bout(
         root_wrench=np.zeros((F, len(lay.persons), 6)),
         seconds={"derivatives_fd": 0.0, "derivatives_cost": 0.0, "backward": 0.0, "rollouts": 0.0},
     )
-    qpos0 = lift_off_floor(scene, separate_persons(scene, ref.qpos[0]))
+    qpos0 = lift_off_floor(scene, separate_persons(scene, ref.qpos[0], absent=absent_persons(weight, 0, 1)))
     qvel0 = ref.qvel[0].copy()
     warm = None
+    # A person absent from the committed frames of a window is simulated as a stand-in that
+    # touches no athlete in view, in the simulation and in the collision cost (``absent``).
+    switch = AbsentContacts(m, lay.geom_person)
     carry = np.zeros((0, m.nu))
     servo = lay.servo_ids
     resid = lay.residual_ids
@@ -343,6 +347,9 @@ def optimise_bout(
     try:
         while s < F - 1:
             H = min(cfg.window, F - 1 - s)
+            absent = absent_persons(weight, s, s + _committed_frames(s, H, F, cfg.commit) + 1)
+            switch.apply(absent)
+            cost.set_absent(absent)
             start = WindowRecord(s, qpos0.copy(), qvel0.copy(), np.zeros(m.nv) if warm is None else warm.copy(), carry.copy())
             it0, resets0 = sol.iterations, sol.resets
             u0 = ref.ctrl[s : s + H].copy()
@@ -363,7 +370,7 @@ def optimise_bout(
                 # Last resort: restart this window from the reference state.
                 log.warning("physics: window at frame %d diverges from the simulated state; reset to the reference", s)
                 sol.resets += 1
-                qpos0 = lift_off_floor(scene, separate_persons(scene, ref.qpos[s]))
+                qpos0 = lift_off_floor(scene, separate_persons(scene, ref.qpos[s], absent=absent))
                 qvel0, warm = ref.qvel[s].copy(), None
                 res_or_none = _first_stable(m, d, cost, qpos0, qvel0, [ref.ctrl[s : s + H]], cfg.ilqr, active(use_res), s, warm, scene.substeps, blocks)
                 if res_or_none is None:
@@ -374,7 +381,7 @@ def optimise_bout(
                         "frames %d-%d keep the reference motion (stats: kinematic_frames)", s, s + 1, s + C
                     )
                     for t in range(1, C + 1):
-                        sol.qpos[s + t] = lift_off_floor(scene, separate_persons(scene, ref.qpos[s + t]))
+                        sol.qpos[s + t] = lift_off_floor(scene, separate_persons(scene, ref.qpos[s + t], absent=absent))
                     sol.qvel[s + 1 : s + C + 1] = ref.qvel[s + 1 : s + C + 1]
                     sol.ctrl[s : s + C] = ref.ctrl[s : s + C]
                     sol.kinematic_frames += C
@@ -446,6 +453,7 @@ def optimise_bout(
     finally:
         m.opt.disableactuator = base_disable
         cost.set_residual(False)
+        switch.restore()
     sol.ctrl[F - 1] = sol.ctrl[F - 2] if F > 1 else ref.ctrl[0]
     sol.actuator_force[F - 1] = sol.actuator_force[F - 2] if F > 1 else 0.0
     return sol

@@ -382,7 +382,8 @@ def reference_and_ik(
 
         qref, _ = balance_reference(scene, qref, contact, kp.fps, balance, posture_weight=posture_weight, sole_lift_m=sole_lift_m)
     if separate and P > 1:
-        qref = separate_reference(scene, qref, clearance_m=separation_clearance_m)
+        # a person absent from the input in a frame is not separated from, nor pushed away
+        qref = separate_reference(scene, qref, clearance_m=separation_clearance_m, absent=np.asarray(~(weight > 0).any(axis=2), dtype=bool))
     vref = reference_velocity(m, qref, kp.fps)
     d = mujoco.MjData(m)
     local = np.zeros((F, P, S, 3))

@@ -7,6 +7,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from pipeline.backends.mujoco.absent import geom_groups
 from pipeline.backends.mujoco.humanoid import load_model
 from pipeline.backends.mujoco.scene import Scene
 from pipeline.backends.mujoco.tracking import collision_depths
@@ -20,6 +21,7 @@ def separate_reference(
     iters: int = 20,
     damping: float = 1e-3,
     final_smooth_frames: float = 1.0,
+    absent: np.ndarray | None = None,
 ) -> np.ndarray:
     """Free every frame of ``qref`` (frames, nq) of inter-person overlap with the least
     weighted change of the DOFs (``_separation_cost``), keeping ``clearance_m`` between
@@ -37,16 +39,18 @@ def separate_reference(
     inverse-dynamics feed-forward turned into torque spikes).
 
     The separation sees every contact between the athletes, also those the simulation
-    may leave out (``HumanoidConfig.arm_contacts``): ``scene.probe_mjcf``."""
+    may leave out (``HumanoidConfig.arm_contacts``): ``scene.probe_mjcf``, except those of a
+    person absent from the input in that frame (``absent``: (frames, persons) bool)."""
     from scipy.ndimage import gaussian_filter1d
 
     m = scene.model
     F = qref.shape[0]
     probe = _clearance_model(scene, clearance_m)
-    delta = _separate_pass(scene, probe, qref, np.zeros((F, m.nv)), clearance_m, iters, damping)
+    absent = np.zeros((F, len(scene.layout.persons)), dtype=bool) if absent is None else absent
+    delta = _separate_pass(scene, probe, qref, np.zeros((F, m.nv)), clearance_m, iters, damping, absent)
     if F > 2 and smooth_frames > 0:
         delta = gaussian_filter1d(delta, smooth_frames, axis=0, mode="nearest")
-        delta = _separate_pass(scene, probe, qref, delta, clearance_m, iters, damping, warm_from_previous=False)
+        delta = _separate_pass(scene, probe, qref, delta, clearance_m, iters, damping, absent, warm_from_previous=False)
         if final_smooth_frames > 0:
             delta = gaussian_filter1d(delta, final_smooth_frames, axis=0, mode="nearest")
     out = qref.copy()
@@ -71,11 +75,13 @@ def _separate_pass(
     clearance_m: float,
     iters: int,
     damping: float,
+    absent: np.ndarray,
     warm_from_previous: bool = True,
 ) -> np.ndarray:
     """Tangent corrections (frames, nv) that separate every frame (see
-    ``separate_reference``); frame f starts from ``delta0[f]``, or with
-    ``warm_from_previous`` from the correction found for frame f - 1."""
+    ``separate_reference``; ``absent`` (frames, persons): persons left out in each frame);
+    frame f starts from ``delta0[f]``, or with ``warm_from_previous`` from the correction
+    found for frame f - 1."""
     m = probe
     d = mujoco.MjData(m)
     W = damping * _separation_cost(scene)
@@ -86,10 +92,11 @@ def _separate_pass(
         start = out[f - 1] if (warm_from_previous and f > 0) else delta0[f]
         q = qref[f].copy()
         mujoco.mj_integratePos(m, q, start, 1.0)
+        groups = geom_groups(scene.layout.geom_person, absent[f])
         for _ in range(iters):
             d.qpos[:] = q
             mujoco.mj_fwdPosition(m, d)
-            gap, J = _athlete_gaps(m, d, scene.layout.geom_person, clearance_m)
+            gap, J = _athlete_gaps(m, d, groups, clearance_m)
             if gap.size == 0 or gap.max() < 1e-4:
                 break
             mujoco.mj_differentiatePos(m, e, 1.0, qref[f], q)
@@ -138,20 +145,27 @@ def _separation_cost(scene: Scene) -> np.ndarray:
 
 
 def separate_persons(
-    scene: Scene, qpos: np.ndarray, iters: int = 20, damping: float = 1e-3, clearance_m: float = 1e-3
+    scene: Scene,
+    qpos: np.ndarray,
+    iters: int = 20,
+    damping: float = 1e-3,
+    clearance_m: float = 1e-3,
+    absent: np.ndarray | None = None,
 ) -> np.ndarray:
     """Remove inter-person overlap from one configuration by Gauss–Newton on the
     contact depths (minimal weighted change of the DOFs, legs and root height
     expensive), so that a simulation does not start from a deep interpenetration
-    (which MuJoCo resolves explosively) and a reference can be made contact-free."""
+    (which MuJoCo resolves explosively) and a reference can be made contact-free.
+    ``absent`` (persons,) bool: persons left out (absent from the input: ``absent``)."""
     m, lay = scene.model, scene.layout
+    groups = lay.geom_person if absent is None else geom_groups(lay.geom_person, absent)
     d = mujoco.MjData(m)
     q = qpos.copy()
     reg = damping * np.diag(_separation_cost(scene))
     for _ in range(iters):
         d.qpos[:] = q
         mujoco.mj_fwdPosition(m, d)
-        depth, J = collision_depths(m, d, lay.geom_person, True)
+        depth, J = collision_depths(m, d, groups, True)
         if depth.size == 0 or depth.max() < 1e-4:
             break
         assert J is not None

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from pipeline.backends.mujoco.absent import geom_groups
 from pipeline.backends.mujoco.config import CostWeights
 from pipeline.backends.mujoco.humanoid import SceneLayout
 from pipeline.backends.mujoco.schedule import ServoSchedule
@@ -149,6 +150,9 @@ class TrackingCost:
         self._probe = probe
         self._probe_data = threading.local()
         self.layout = layout
+        self.geom_group = layout.geom_person
+        """Person index per geom for the collision term, -1 = left out (the floor, and absent
+        persons: ``set_absent``)."""
         self.ref = ref
         self.w = weights
         self.servo = layout.servo_ids
@@ -280,7 +284,7 @@ class TrackingCost:
     def _collision(self, data: mujoco.MjData, with_jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
         """Depths by which pairs of the athletes' geoms fall short of the clearance."""
         if self._probe is None:
-            return collision_depths(self.model, data, self.layout.geom_person, with_jac)
+            return collision_depths(self.model, data, self.geom_group, with_jac)
         gap = self.w.collision_clearance_m
         pd = getattr(self._probe_data, "d", None)
         if pd is None:  # one per thread: line-search rollouts may run on threads
@@ -289,8 +293,13 @@ class TrackingCost:
         mujoco.mj_kinematics(self._probe, pd)
         mujoco.mj_comPos(self._probe, pd)
         mujoco.mj_collision(self._probe, pd)
-        depth, J = collision_depths(self._probe, pd, self.layout.geom_person, with_jac, max_dist_m=gap)
+        depth, J = collision_depths(self._probe, pd, self.geom_group, with_jac, max_dist_m=gap)
         return depth + gap, J
+
+    def set_absent(self, absent: np.ndarray) -> None:
+        """Leave the ``absent`` (persons,) persons out of the collision term (their stand-ins
+        may overlap anyone: ``absent.geom_groups``)."""
+        self.geom_group = geom_groups(self.layout.geom_person, absent)
 
     def set_residual(self, on: bool, torque_limit_nm: np.ndarray | None = None, saturation_rad: float = 0.1) -> None:
         """Enable the residual root torque: a PD on each root orientation towards the
