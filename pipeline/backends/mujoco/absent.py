@@ -25,10 +25,15 @@ PERSON_AFFINITY = 0x3FFFFFFF
 """An athlete's geoms' conaffinity: every contact bit but ``ABSENT_BIT``."""
 
 
+def out_of_view(weight: np.ndarray) -> np.ndarray:
+    """(frames, persons) bool: no weighted site of the person in the frame (``weight``:
+    (frames, persons, sites) >= 0, 0 where the joint was not observed)."""
+    return np.asarray(~(weight > 0).any(axis=2), dtype=bool)
+
+
 def absent_persons(weight: np.ndarray, first: int, stop: int) -> np.ndarray:
-    """(persons,) bool: no weighted site of the person in frames ``first`` to ``stop - 1``
-    (``weight``: (frames, persons, sites) >= 0, 0 where the joint was not observed)."""
-    return np.asarray(~(weight[first:stop] > 0).any(axis=(0, 2)), dtype=bool)
+    """(persons,) bool: ``out_of_view`` in every frame from ``first`` to ``stop - 1``."""
+    return np.asarray(out_of_view(weight[first:stop]).all(axis=0), dtype=bool)
 
 
 def geom_groups(geom_person: np.ndarray, absent: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from pipeline.backends.mujoco.absent import out_of_view
 from pipeline.backends.mujoco.config import ReferenceConfig
 from pipeline.backends.mujoco.humanoid import SceneLayout
 from pipeline.backends.mujoco.ik_reuse import (
@@ -383,7 +384,7 @@ def reference_and_ik(
         qref, _ = balance_reference(scene, qref, contact, kp.fps, balance, posture_weight=posture_weight, sole_lift_m=sole_lift_m)
     if separate and P > 1:
         # a person absent from the input in a frame is not separated from, nor pushed away
-        qref = separate_reference(scene, qref, clearance_m=separation_clearance_m, absent=np.asarray(~(weight > 0).any(axis=2), dtype=bool))
+        qref = separate_reference(scene, qref, clearance_m=separation_clearance_m, absent=out_of_view(weight))
     vref = reference_velocity(m, qref, kp.fps)
     d = mujoco.MjData(m)
     local = np.zeros((F, P, S, 3))
